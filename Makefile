@@ -1,0 +1,38 @@
+# Two commands: `make run` (set up, then run the quick suite and print its table) and `make test`.
+# Setup is idempotent: system packages only when missing, pip only when pyproject.toml changed.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+export DRJIT_LIBLLVM_PATH ?= /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
+
+.PHONY: setup sysdeps run test bench lint clean
+
+setup: sysdeps $(STAMP)
+
+sysdeps:
+	@bash scripts/sysdeps.sh
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+
+$(STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install -q -e '.[test,cluster]'
+	@touch $(STAMP)
+
+run: setup
+	$(BIN)/plantbench run --suite quick
+
+test: setup
+	$(BIN)/python -m pytest -q tests
+
+bench: setup
+	$(BIN)/python -m pytest -q bench --benchmark-only --benchmark-columns=min,mean,median,rounds
+
+lint: setup
+	$(BIN)/ruff check .
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache .benchmarks

@@ -1,0 +1,280 @@
+"""The ``plantbench`` command: a thin layer over library functions.
+
+Only this module prints or exits. A user mistake (InputError: unknown name, malformed file, invalid value) prints
+one line and exits 2; a stage that has not landed yet exits 1 with a one-line message; ``--debug`` shows tracebacks.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from plantbench.errors import InputError, NotAvailableError, PlantbenchError
+
+app = typer.Typer(
+    name="plantbench",
+    help="Benchmark suite with synthetic ground truth for 3D plant reconstruction.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,
+)
+
+_state = {"debug": False}
+
+
+def _console():
+    from rich.console import Console
+
+    return Console()
+
+
+def _not_yet(stage: str, issue: int) -> None:
+    raise NotAvailableError(f"plantbench {stage}: not available yet (the stage lands with issue #{issue})")
+
+
+@app.callback()
+def _root(
+    debug: Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.")] = False,
+    version: Annotated[bool, typer.Option("--version", help="Print the version and exit.")] = False,
+) -> None:
+    _state["debug"] = debug
+    if version:
+        from plantbench import __version__
+
+        typer.echo(__version__)
+        raise typer.Exit(0)
+
+
+# ------------------------------------------------------------------------------------------------------- stages
+
+
+@app.command()
+def generate(
+    species: Annotated[str, typer.Option(help="Species name (see `plantbench species`).")],
+    out: Annotated[Path, typer.Option(help="Case folder; plant/ is written inside it.")],
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    scale: Annotated[float, typer.Option(help="Growth budget factor in (0, 1]; < 1 grows smaller plants.")] = 1.0,
+) -> None:
+    """Grow a plant and write its ground truth (plant/)."""
+    try:
+        from plantbench.generate import generate_case
+    except ImportError:
+        _not_yet("generate", 3)
+    meta = generate_case(species, seed, out, scale=scale)
+    c = meta.counts
+    typer.echo(
+        f"{out / 'plant'}: {meta.species} seed {meta.seed}, height {meta.height:.2f} m, {c.branches} branches, "
+        f"{c.leaves} leaves, {c.nodes} nodes"
+    )
+
+
+@app.command()
+def capture(
+    case: Annotated[Path, typer.Argument(help="Case folder holding plant/.")],
+    views: Annotated[int, typer.Option(help="Number of views.")] = 20,
+    size: Annotated[str, typer.Option(help="Image size WxH.")] = "512x512",
+    spp: Annotated[int, typer.Option(help="Samples per pixel of the path tracer.")] = 16,
+    elevation: Annotated[str, typer.Option(help="Camera elevation band LO,HI in degrees.")] = "5,45",
+    scan: Annotated[bool, typer.Option("--scan/--no-scan", help="Also simulate a laser scan.")] = True,
+    stations: Annotated[int, typer.Option(help="Laser scanner stations.")] = 1,
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+) -> None:
+    """Render multi-view images with exact depth/instance maps and cameras, and simulate a laser scan."""
+    try:
+        from plantbench.capture import capture_case  # noqa: F401
+    except ImportError:
+        _not_yet("capture", 4)
+    _not_yet("capture", 4)
+
+
+@app.command()
+def reconstruct(
+    case: Annotated[Path, typer.Argument(help="Case folder (a capture).")],
+    method: Annotated[str, typer.Option(help="Registered method name, or cmd:\"tool {capture} {out}\".")],
+    out: Annotated[Path, typer.Option(help="Output folder for the reconstruction.")],
+    seed: Annotated[int, typer.Option(help="Random seed passed to the method.")] = 0,
+    species: Annotated[Optional[str], typer.Option(help="Species hint passed to the method.")] = None,  # noqa: UP045
+) -> None:
+    """Run one method on one case."""
+    from plantbench.methods.api import method_from_spec
+
+    m = method_from_spec(method)
+    if not case.is_dir():
+        raise InputError("case folder not found", path=case)
+    m.reconstruct(case, out, seed=seed, species=species)
+    typer.echo(f"{m.name}: wrote {out}")
+
+
+@app.command()
+def evaluate(
+    case: Annotated[Path, typer.Argument(help="Case folder with ground truth.")],
+    recon: Annotated[Path, typer.Argument(help="A method's output folder.")],
+    json_out: Annotated[Optional[Path], typer.Option("--json", help="Write all metrics as JSON here.")] = None,  # noqa: UP045
+) -> None:
+    """Score a reconstruction against a case's ground truth."""
+    try:
+        from plantbench.metrics.evaluate import evaluate as run_eval
+    except ImportError:
+        _not_yet("evaluate", 5)
+    _not_yet("evaluate", 5)
+    del run_eval, json_out
+
+
+@app.command()
+def run(
+    suite: Annotated[str, typer.Option(help="Suite name (see `plantbench suites`) or path to a suite TOML.")],
+    methods: Annotated[Optional[str], typer.Option(help="Comma-separated methods overriding the suite's.")] = None,  # noqa: UP045
+    workers: Annotated[int, typer.Option(help="Parallel workers.")] = 1,
+    executor: Annotated[str, typer.Option(help="local or dask.")] = "local",
+    scheduler: Annotated[Optional[str], typer.Option(help="Dask scheduler address.")] = None,  # noqa: UP045
+    out: Annotated[Path, typer.Option(help="Run folder.")] = Path("runs"),
+) -> None:
+    """Run a suite: cases x methods, cached and resumable; writes the results table."""
+    from plantbench.suites import load_suite
+
+    spec = load_suite(suite)
+    if methods:
+        from plantbench.methods.api import method_from_spec
+
+        for m in methods.split(","):
+            method_from_spec(m.strip())
+    if executor not in ("local", "dask"):
+        raise InputError(f"unknown executor {executor!r}; choose 'local' or 'dask'")
+    del spec, workers, scheduler, out
+    _not_yet("run", 10)
+
+
+@app.command()
+def report(
+    run_dir: Annotated[Path, typer.Argument(metavar="RUN", help="A run folder.")],
+    fmt: Annotated[str, typer.Option("--format", help="md, latex, csv or html.")] = "md",
+) -> None:
+    """Write tables and figures for a run."""
+    del run_dir, fmt
+    _not_yet("report", 10)
+
+
+@app.command()
+def gate(
+    run_dir: Annotated[Path, typer.Argument(metavar="RUN", help="A run folder.")],
+    baseline: Annotated[Path, typer.Option(help="Baseline JSON with tolerances.")] = Path("reports/baseline.json"),
+) -> None:
+    """Compare a run with a baseline; exit non-zero on a regression."""
+    del run_dir, baseline
+    _not_yet("gate", 10)
+
+
+# ------------------------------------------------------------------------------------------------------ listings
+
+
+@app.command("species")
+def species_cmd(
+    stats: Annotated[bool, typer.Option("--stats", help="Grow each species and compare with seed 000 Table 2.")] = False,
+) -> None:
+    """List the species library."""
+    from rich.table import Table
+
+    from plantbench.species import load_species, species
+
+    if stats:
+        try:
+            from plantbench.generate import species_stats
+        except ImportError:
+            _not_yet("species --stats", 3)
+        rows = species_stats()
+        table = Table("species", "H (m)", "H paper", "|B|", "|B| paper", "l_B (m)", "l_B paper")
+
+        def f(v, spec=".2f"):
+            return "-" if v is None else format(v, spec)
+
+        for r in rows:
+            table.add_row(
+                r["species"], f(r["H"]), f(r.get("H_paper")), f(r["B"], ".0f"), f(r.get("B_paper"), ".0f"),
+                f(r["l_B"], ".3f"), f(r.get("l_B_paper"), ".3f"),
+            )
+        _console().print(table)
+        return
+    table = Table("species", "family", "description")
+    for name, path in species.items():
+        try:
+            spec = load_species(name)
+            table.add_row(name, spec.family, getattr(spec, "description", ""))
+        except (InputError, ImportError) as exc:
+            table.add_row(name, "?", f"invalid: {exc}" if isinstance(exc, InputError) else str(path))
+    _console().print(table)
+
+
+@app.command("suites")
+def suites_cmd() -> None:
+    """List the suites."""
+    from rich.table import Table
+
+    from plantbench.suites import load_suite, suites
+
+    table = Table("suite", "cases", "methods", "views", "description")
+    for name, _ in suites.items():
+        s = load_suite(name)
+        n_cases = sum(len(c.seeds) for c in s.cases)
+        table.add_row(name, str(n_cases), ", ".join(s.methods), str(s.capture.views), s.description)
+    _console().print(table)
+
+
+@app.command("methods")
+def methods_cmd() -> None:
+    """List the registered methods (shipped and plugins)."""
+    from rich.table import Table
+
+    from plantbench.registry import methods
+
+    table = Table("method", "inputs", "module")
+    for name, m in methods.items():
+        table.add_row(name, m.inputs, type(m).__module__)
+    for name, err in methods.load_errors().items():
+        table.add_row(name, "-", f"failed to load: {err}")
+    _console().print(table)
+
+
+# -------------------------------------------------------------------------------------------------------- entry
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point: run the CLI and map errors to exit codes (2 user error, 1 not available / failure)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    _state["debug"] = "--debug" in argv
+    try:
+        app(argv, standalone_mode=False)
+    except typer.Exit as exc:
+        return exc.exit_code
+    except SystemExit as exc:
+        return int(exc.code or 0)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001 - the CLI maps every error to one line
+        if _state["debug"]:
+            raise
+        if type(exc).__name__ == "Abort":  # Ctrl-C at a prompt
+            return 130
+        if hasattr(exc, "show") and hasattr(exc, "exit_code"):  # click-style usage errors (typer vendors click)
+            exc.show()
+            return int(exc.exit_code)
+        if isinstance(exc, InputError):
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        if isinstance(exc, NotAvailableError):
+            print(str(exc), file=sys.stderr)
+            return 1
+        if isinstance(exc, PlantbenchError):
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
+        print(f"internal error: {type(exc).__name__}: {exc} (run with --debug for the traceback)", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

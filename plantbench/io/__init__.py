@@ -1,0 +1,1 @@
+"""Reading and writing the on-disk contracts (DESIGN.md section 3)."""

@@ -1,0 +1,9 @@
+"""Method API: what a reconstruction method is, and how one is run (DESIGN.md section 6).
+
+The registry (:data:`plantbench.registry.methods`) loads every method, shipped or third-party, from the entry
+point group ``plantbench.methods``.
+"""
+
+from plantbench.methods.api import INPUT_KINDS, ExternalCommand, Method, method_from_spec
+
+__all__ = ["Method", "ExternalCommand", "INPUT_KINDS", "method_from_spec"]

@@ -1,0 +1,80 @@
+"""The method protocol and external-command methods.
+
+A method is any object with
+
+- ``name`` : str
+- ``inputs`` : ``"views"`` (reads ``views/images`` + ``views/cameras.json``), ``"scan"`` (reads the coordinates of
+  ``scan/scan.ply``) or ``"points"`` (reads ``points.ply`` of an earlier point stage: the ``mvs`` cloud for view
+  captures, the scan's coordinates for scan captures)
+- ``reconstruct(capture_dir, out_dir, *, seed, species=None) -> None`` writing the output contract into
+  ``out_dir``: ``skeleton.ply`` (required), ``mesh.ply``, ``leaves.json``, ``points.ply`` (optional).
+
+``species`` is the one piece of prior knowledge a method may receive (the runner passes it as a hint).
+Methods must not read ground truth (``plant/``, ``views/depth``, ``views/instance``, the scan's labels) unless they
+are explicitly named oracles.
+"""
+
+from __future__ import annotations
+
+import os
+import shlex
+import subprocess
+from pathlib import Path
+from typing import Literal, Protocol, runtime_checkable
+
+from plantbench.errors import InputError, PlantbenchError
+
+__all__ = ["Method", "ExternalCommand", "INPUT_KINDS", "method_from_spec", "MethodFailed"]
+
+INPUT_KINDS = ("views", "scan", "points")
+
+
+class MethodFailed(PlantbenchError):
+    """A method ran and failed (non-zero exit, missing output)."""
+
+
+@runtime_checkable
+class Method(Protocol):
+    name: str
+    inputs: Literal["views", "scan", "points"]
+
+    def reconstruct(
+        self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None
+    ) -> None:  # pragma: no cover - protocol
+        ...
+
+
+class ExternalCommand:
+    """A method given as a command line with ``{capture}``, ``{out}`` (and optional ``{seed}``, ``{species}``)
+    placeholders, run without a shell: ``cmd:"my_tool --in {capture} --out {out}"``."""
+
+    def __init__(self, command: str, *, inputs: str = "views", name: str | None = None) -> None:
+        argv = shlex.split(command)
+        if not argv:
+            raise InputError("external method: empty command")
+        if not any("{out}" in a for a in argv):
+            raise InputError(f"external method '{command}': the command must contain the {{out}} placeholder")
+        if inputs not in INPUT_KINDS:
+            raise InputError(f"external method: inputs must be one of {INPUT_KINDS}, got {inputs!r}")
+        self.argv = argv
+        self.inputs = inputs
+        self.name = name or "cmd:" + Path(argv[0]).name
+
+    def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None) -> None:
+        values = {"capture": str(capture_dir), "out": str(out_dir), "seed": str(seed), "species": species or ""}
+        argv = [a.format(**values) for a in self.argv]
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
+        proc = subprocess.run(argv, capture_output=True, text=True, env=dict(os.environ))
+        if proc.stdout:
+            print(proc.stdout, end="")
+        if proc.returncode != 0:
+            raise MethodFailed(f"{self.name} exited {proc.returncode}: {proc.stderr.strip()[-2000:]}")
+
+
+def method_from_spec(spec: str):
+    """A registered method name, or ``cmd:COMMAND`` for an external command."""
+    if spec.startswith("cmd:"):
+        return ExternalCommand(spec[4:])
+    from plantbench.registry import methods
+
+    return methods.get(spec)

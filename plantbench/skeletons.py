@@ -1,0 +1,63 @@
+"""Structural views of a :class:`~plantbench.plant.Skeleton` shared by the generator, metrics and methods."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from plantbench.plant import Skeleton
+
+__all__ = ["children_lists", "branch_chains", "chain_lengths", "topological_order"]
+
+
+def children_lists(skeleton: Skeleton) -> list[np.ndarray]:
+    """Children of each node, in increasing index order."""
+    n = len(skeleton)
+    par = skeleton.parents
+    idx = np.flatnonzero(par >= 0)
+    order = idx[np.argsort(par[idx], kind="stable")]
+    counts = np.bincount(par[idx], minlength=n)
+    return np.split(order, np.cumsum(counts)[:-1]) if n else []
+
+
+def topological_order(skeleton: Skeleton) -> np.ndarray:
+    """Node indices ordered so that every parent precedes its children (breadth-first from the roots)."""
+    kids = children_lists(skeleton)
+    out = list(skeleton.roots)
+    i = 0
+    while i < len(out):
+        out.extend(kids[out[i]].tolist())
+        i += 1
+    return np.asarray(out, np.int64)
+
+
+def branch_chains(skeleton: Skeleton) -> list[np.ndarray]:
+    """Branches in Stava's sense: maximal unbranched chains of nodes.
+
+    Each chain starts at a root or at a junction (a node with two or more children) and follows single-child links
+    until a tip or the next junction, which it includes. Chains with a single node (a root that is itself a
+    junction, or an isolated node) have no length and are omitted. Chains are returned parent-first in
+    breadth-first order, so a chain's parent chain always comes earlier.
+    """
+    kids = children_lists(skeleton)
+    chains: list[np.ndarray] = []
+    starts: list[tuple[int, int]] = [(int(r), -1) for r in skeleton.roots]  # (first node, junction it hangs from)
+    i = 0
+    while i < len(starts):
+        node, junction = starts[i]
+        i += 1
+        chain = [junction] if junction >= 0 else []
+        chain.append(node)
+        while len(kids[node]) == 1:
+            node = int(kids[node][0])
+            chain.append(node)
+        if len(chain) > 1:
+            chains.append(np.asarray(chain, np.int64))
+        for c in kids[node]:
+            starts.append((int(c), node))
+    return chains
+
+
+def chain_lengths(skeleton: Skeleton, chains: list[np.ndarray]) -> np.ndarray:
+    """Polyline length of each chain, metres."""
+    p = skeleton.positions
+    return np.array([np.linalg.norm(np.diff(p[c], axis=0), axis=1).sum() for c in chains])

@@ -1,0 +1,1 @@
+"""Reconstruction methods shipped with plantbench, registered through the plantbench.methods entry point."""

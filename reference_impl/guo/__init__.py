@@ -1,0 +1,1 @@
+"""guo (not implemented yet)."""

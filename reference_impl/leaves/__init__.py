@@ -1,0 +1,1 @@
+"""leaves (not implemented yet)."""

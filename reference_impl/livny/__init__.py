@@ -1,0 +1,1 @@
+"""livny (not implemented yet)."""

@@ -1,0 +1,1 @@
+"""mvs (not implemented yet)."""

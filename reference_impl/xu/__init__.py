@@ -1,0 +1,1 @@
+"""xu (not implemented yet)."""

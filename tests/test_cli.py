@@ -1,0 +1,59 @@
+"""The CLI as a user sees it: exit codes and one-line errors, in a subprocess."""
+
+import subprocess
+import sys
+
+import pytest
+
+
+def plantbench(*args, **kw):
+    return subprocess.run([sys.executable, "-m", "plantbench.cli", *args], capture_output=True, text=True, **kw)
+
+
+def test_help_lists_every_subcommand():
+    out = plantbench("--help")
+    assert out.returncode == 0
+    for cmd in ("generate", "capture", "reconstruct", "evaluate", "run", "report", "gate", "species", "suites",
+                "methods"):
+        assert cmd in out.stdout
+        sub = plantbench(cmd, "--help")
+        assert sub.returncode == 0, (cmd, sub.stderr)
+
+
+def test_unknown_suite_did_you_mean():
+    out = plantbench("run", "--suite", "quik")
+    assert out.returncode == 2
+    assert "did you mean 'quick'" in out.stderr
+    assert "Traceback" not in out.stderr and len(out.stderr.strip().splitlines()) == 1
+
+
+def test_debug_shows_traceback():
+    out = plantbench("--debug", "run", "--suite", "quik")
+    assert out.returncode != 0 and "Traceback" in out.stderr
+
+
+def test_unknown_method_did_you_mean(tmp_path):
+    out = plantbench("reconstruct", str(tmp_path), "--method", "gtt", "--out", str(tmp_path / "o"))
+    assert out.returncode == 2 and "did you mean 'gt'" in out.stderr
+
+
+def test_malformed_suite_file_names_file(tmp_path):
+    bad = tmp_path / "mine.toml"
+    bad.write_text("name = [\n")
+    out = plantbench("run", "--suite", str(bad))
+    assert out.returncode == 2 and "mine.toml: malformed TOML" in out.stderr
+
+
+@pytest.mark.parametrize("cmd", [["methods"], ["suites"], ["species"]])
+def test_listings(cmd):
+    out = plantbench(*cmd)
+    assert out.returncode == 0, out.stderr
+
+
+def test_methods_lists_gt():
+    assert "gt" in plantbench("methods").stdout
+
+
+def test_external_command_needs_out_placeholder(tmp_path):
+    out = plantbench("reconstruct", str(tmp_path), "--method", "cmd:echo {capture}", "--out", str(tmp_path / "o"))
+    assert out.returncode == 2 and "{out}" in out.stderr

@@ -1,0 +1,49 @@
+import json
+
+import pytest
+from pydantic import ValidationError
+
+from plantbench.errors import InputError
+from plantbench.schemas import CamerasJson, load_json
+from plantbench.suites import Suite, load_suite, suites
+
+
+def test_every_shipped_suite_validates():
+    assert {"quick", "multiview", "scan", "views-sweep", "noise-sweep"} <= set(suites.names())
+    for name in suites.names():
+        s = load_suite(name)
+        assert s.name == name
+
+
+def test_unknown_field_named(tmp_path):
+    p = tmp_path / "cams.json"
+    p.write_text(json.dumps({"cameras": [], "colour": 1}))
+    with pytest.raises(InputError, match=r"cams.json: colour: unknown field"):
+        load_json(p, CamerasJson)
+
+
+def test_malformed_json_named(tmp_path):
+    p = tmp_path / "cams.json"
+    p.write_text("{not json")
+    with pytest.raises(InputError, match=r"cams.json: malformed JSON"):
+        load_json(p, CamerasJson)
+
+
+def test_suite_invalid_value_names_field(tmp_path):
+    p = tmp_path / "bad.toml"
+    p.write_text('name = "bad"\ndescription = "x"\nmethods = ["gt"]\n[[cases]]\nspecies = "maple"\nseeds = [1]\n'
+                 "[capture]\nviews = 0\n")
+    with pytest.raises(InputError, match=r"bad.toml: capture.views: Input should be greater than or equal to 1"):
+        load_suite(str(p))
+
+
+def test_suite_malformed_toml(tmp_path):
+    p = tmp_path / "bad.toml"
+    p.write_text("name = \n")
+    with pytest.raises(InputError, match="malformed TOML"):
+        load_suite(str(p))
+
+
+def test_suite_model_forbids_extra():
+    with pytest.raises(ValidationError, match="extra"):
+        Suite(name="x", description="y", cases=[{"species": "a", "seeds": [1]}], methods=["gt"], extra=1)
