@@ -134,38 +134,86 @@ def run(
     out: Annotated[Path, typer.Option(help="Run folder.")] = Path("runs"),
 ) -> None:
     """Run a suite: cases x methods, cached and resumable; writes the results table."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from plantbench.runner import run_suite
     from plantbench.suites import load_suite
 
     spec = load_suite(suite)
-    if methods:
-        from plantbench.methods.api import method_from_spec
+    method_list = [m.strip() for m in methods.split(",")] if methods else None
+    console = _console()
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=console, transient=False) as bar:
+        task = bar.add_task(f"suite {spec.name}", total=None)
 
-        for m in methods.split(","):
-            method_from_spec(m.strip())
-    if executor not in ("local", "dask"):
-        raise InputError(f"unknown executor {executor!r}; choose 'local' or 'dask'")
-    del spec, workers, scheduler, out
-    _not_yet("run", 10)
+        def progress(done: int, total: int, rec: dict) -> None:
+            state = "reused" if rec.get("reused") else rec["status"]
+            bar.update(task, completed=done, total=total, description=f"suite {spec.name}: {rec['kind']} {state}")
+            if rec["status"] != "ok" and not rec.get("upstream"):
+                bar.console.print(f"[red]{rec['kind']} {rec['key']} {rec['status']}[/red]: {rec.get('error')}")
+
+        try:
+            result = run_suite(spec, out, methods=method_list, workers=workers, executor=executor,
+                               scheduler=scheduler, progress=progress)
+        except KeyboardInterrupt:
+            console.print("interrupted: finished jobs are cached; run the same command again to resume")
+            raise typer.Exit(130) from None
+    st = result.stats
+    console.print(
+        f"{result.run_dir}: {st['computed']} jobs computed, {st['reused']} reused from the cache, "
+        f"{st['failed']} failed, {result.seconds:.1f} s"
+    )
+    from plantbench.report.tables import summary_table
+
+    console.print(summary_table(result.table))
 
 
 @app.command()
 def report(
-    run_dir: Annotated[Path, typer.Argument(metavar="RUN", help="A run folder.")],
-    fmt: Annotated[str, typer.Option("--format", help="md, latex, csv or html.")] = "md",
+    run_dir: Annotated[Path, typer.Argument(metavar="RUN", help="A run folder (holding results.parquet).")],
+    fmt: Annotated[str, typer.Option("--format", help="Comma-separated: md, latex, csv, html.")] = "md,latex,csv,html",
+    out: Annotated[Optional[Path], typer.Option(help="Output folder (default RUN/report).")] = None,  # noqa: UP045
 ) -> None:
-    """Write tables and figures for a run."""
-    del run_dir, fmt
-    _not_yet("report", 10)
+    """Write tables (mean and 95 % bootstrap CI per method, species, family) and figures for a run."""
+    from plantbench.report.report import write_report
+
+    files = write_report(run_dir, tuple(f.strip() for f in fmt.split(",")), out)
+    for f in files:
+        typer.echo(str(f))
 
 
 @app.command()
 def gate(
-    run_dir: Annotated[Path, typer.Argument(metavar="RUN", help="A run folder.")],
+    run_dir: Annotated[Path, typer.Argument(metavar="RUN", help="A run folder (holding results.parquet).")],
     baseline: Annotated[Path, typer.Option(help="Baseline JSON with tolerances.")] = Path("reports/baseline.json"),
+    write: Annotated[bool, typer.Option("--write", help="Write the baseline from this run instead of comparing.")] = False,
+    rel_tol: Annotated[float, typer.Option(help="With --write: relative tolerance per metric.")] = 0.05,
 ) -> None:
-    """Compare a run with a baseline; exit non-zero on a regression."""
-    del run_dir, baseline
-    _not_yet("gate", 10)
+    """Compare a run with a baseline; exit 1 naming every metric that regressed beyond its tolerance."""
+    from rich.table import Table
+
+    from plantbench.report.gate import compare, load_baseline, make_baseline, read_results, write_baseline
+
+    table = read_results(run_dir)
+    if write:
+        suite = run_dir.name
+        b = make_baseline(table, suite, rel_tol=rel_tol)
+        write_baseline(baseline, b)
+        typer.echo(f"{baseline}: {len(b.entries)} metric baselines from {run_dir}")
+        return
+    result = compare(table, load_baseline(baseline))
+    bad = result[result["regressed"]]
+    console = _console()
+    if bad.empty:
+        console.print(f"gate passed: {len(result)} metrics within tolerance of {baseline}")
+        return
+    out = Table("method", "metric", "baseline", "now", "tolerance", "direction", title="regressions")
+    for r in bad.itertuples():
+        out.add_row(r.method, r.metric, f"{r.baseline:.4g}", "missing" if r.value != r.value else f"{r.value:.4g}",
+                    f"{r.tolerance:.3g}", "higher is better" if r.higher_is_better else "lower is better")
+    console.print(out)
+    console.print(f"gate failed: {len(bad)} of {len(result)} metrics regressed")
+    raise typer.Exit(1)
 
 
 # ------------------------------------------------------------------------------------------------------ listings

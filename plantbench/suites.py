@@ -3,15 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, ValidationError, model_validator
 
+from plantbench.errors import InputError
 from plantbench.paths import suites_dir
 from plantbench.registry import Registry
-from plantbench.schemas import Strict, load_toml
+from plantbench.schemas import Strict, load_toml, validation_message
 
-__all__ = ["Suite", "CaseSet", "CaptureSettings", "suites", "load_suite"]
+__all__ = ["Suite", "CaseSet", "CaptureSettings", "Sweep", "suites", "load_suite", "apply_override"]
 
 
 class CaseSet(Strict):
@@ -40,7 +41,8 @@ class CaptureSettings(Strict):
 
 
 class Sweep(Strict):
-    """Repeat the suite over values of one setting, e.g. ``parameter = "capture.views"``."""
+    """Repeat the suite over values of one setting: ``parameter`` is a dotted path into the suite, e.g.
+    ``"capture.views"`` or ``"method_options.mvs.noise"``."""
 
     parameter: str
     values: list[float | int | str] = Field(min_length=1)
@@ -53,10 +55,31 @@ class Suite(Strict):
     cases: list[CaseSet] = Field(min_length=1)
     methods: list[str] = Field(min_length=1)
     capture: CaptureSettings = CaptureSettings()
-    depth: Literal["estimated", "oracle"] = Field(default="estimated", description="mvs depth source")
-    depth_noise: float = Field(default=0.0, ge=0, description="oracle depth noise, fraction of plant height")
+    source: Literal["views", "scan"] = Field(
+        default="views", description="what point-cloud methods reconstruct from: the mvs cloud of the views, or the scan"
+    )
+    method_options: dict[str, dict[str, Any]] = Field(
+        default_factory=dict, description="per-method keyword options, e.g. [method_options.mvs] depth = 'oracle'"
+    )
     timeout_s: float = Field(default=600.0, gt=0, description="per method call")
     sweep: Sweep | None = None
+
+
+def apply_override(suite: Suite, parameter: str, value: Any) -> Suite:
+    """A copy of ``suite`` with the dotted ``parameter`` set to ``value`` (validated again)."""
+    data = suite.model_dump(mode="python")
+    node = data
+    *path, last = parameter.split(".")
+    for key in path:
+        node = node.setdefault(key, {})
+        if not isinstance(node, dict):
+            raise InputError(f"sweep parameter {parameter!r}: {key!r} is not a table")
+    node[last] = value
+    data["sweep"] = None
+    try:
+        return Suite.model_validate(data)
+    except ValidationError as exc:
+        raise InputError(f"sweep value {value!r} for {parameter}: {validation_message(exc)}") from None
 
 
 def _discover(reg: Registry) -> None:

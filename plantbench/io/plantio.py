@@ -86,9 +86,12 @@ def read_plant(case_dir: str | os.PathLike) -> tuple[Plant, PlantJson]:
 
 @dataclass(frozen=True)
 class Reconstruction:
-    """A method's output folder. Optional parts are None when the file is absent."""
+    """A method's output folder. Parts are None when the file is absent.
 
-    skeleton: Skeleton
+    A full reconstruction has at least skeleton.ply; a point stage such as ``mvs`` writes only points.ply.
+    """
+
+    skeleton: Skeleton | None
     mesh: TriMesh | None
     leaves: list[Leaf] | None
     points: np.ndarray | None
@@ -98,7 +101,9 @@ def read_reconstruction(out_dir: str | os.PathLike) -> Reconstruction:
     out = Path(out_dir)
     if not out.is_dir():
         raise InputError("reconstruction folder not found", path=out)
-    skeleton = read_skeleton(out / "skeleton.ply")
+    if not (out / "skeleton.ply").exists() and not (out / "points.ply").exists():
+        raise InputError("neither skeleton.ply nor points.ply: not a method output", path=out)
+    skeleton = read_skeleton(out / "skeleton.ply") if (out / "skeleton.ply").exists() else None
     mesh = read_mesh(out / "mesh.ply")[0] if (out / "mesh.ply").exists() else None
     leaves = leaves_from_json(load_json(out / "leaves.json", LeavesJson)) if (out / "leaves.json").exists() else None
     points = read_points(out / "points.ply")[0] if (out / "points.ply").exists() else None
@@ -107,7 +112,7 @@ def read_reconstruction(out_dir: str | os.PathLike) -> Reconstruction:
 
 def write_reconstruction(
     out_dir: str | os.PathLike,
-    skeleton: Skeleton,
+    skeleton: Skeleton | None,
     mesh: TriMesh | None = None,
     leaves: list[Leaf] | None = None,
     points: np.ndarray | None = None,
@@ -118,7 +123,8 @@ def write_reconstruction(
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    write_skeleton(out / "skeleton.ply", skeleton)
+    if skeleton is not None:
+        write_skeleton(out / "skeleton.ply", skeleton)
     if mesh is not None:
         write_mesh(out / "mesh.ply", mesh)
     if leaves is not None:

@@ -6,10 +6,12 @@ A method is any object with
 - ``inputs`` : ``"views"`` (reads ``views/images`` + ``views/cameras.json``), ``"scan"`` (reads the coordinates of
   ``scan/scan.ply``) or ``"points"`` (reads ``points.ply`` of an earlier point stage: the ``mvs`` cloud for view
   captures, the scan's coordinates for scan captures)
-- ``reconstruct(capture_dir, out_dir, *, seed, species=None) -> None`` writing the output contract into
-  ``out_dir``: ``skeleton.ply`` (required), ``mesh.ply``, ``leaves.json``, ``points.ply`` (optional).
+- ``reconstruct(capture_dir, out_dir, *, seed, species=None, **options) -> None`` writing the output contract
+  into ``out_dir``: ``skeleton.ply`` (required), ``mesh.ply``, ``leaves.json``, ``points.ply`` (optional).
 
-``species`` is the one piece of prior knowledge a method may receive (the runner passes it as a hint).
+``species`` is the one piece of prior knowledge a method may receive (the runner passes it as a hint);
+``options`` are the suite's ``[method_options.NAME]`` keywords. For a ``"points"`` method, ``capture_dir`` holds
+``points.ply`` and, for view captures, ``views/`` (images and cameras) beside it.
 Methods must not read ground truth (``plant/``, ``views/depth``, ``views/instance``, the scan's labels) unless they
 are explicitly named oracles.
 """
@@ -39,7 +41,7 @@ class Method(Protocol):
     inputs: Literal["views", "scan", "points"]
 
     def reconstruct(
-        self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None
+        self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None, **options
     ) -> None:  # pragma: no cover - protocol
         ...
 
@@ -58,9 +60,11 @@ class ExternalCommand:
             raise InputError(f"external method: inputs must be one of {INPUT_KINDS}, got {inputs!r}")
         self.argv = argv
         self.inputs = inputs
-        self.name = name or "cmd:" + Path(argv[0]).name
+        self.name = name or "cmd:" + command
 
-    def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None) -> None:
+    def reconstruct(
+        self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None, **options
+    ) -> None:
         values = {"capture": str(capture_dir), "out": str(out_dir), "seed": str(seed), "species": species or ""}
         argv = [a.format(**values) for a in self.argv]
         Path(out_dir).mkdir(parents=True, exist_ok=True)

@@ -19,7 +19,9 @@ class GroundTruth:
     inputs = "views"
     oracle = True
 
-    def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None) -> None:
+    def reconstruct(
+        self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None, **options
+    ) -> None:
         plant, _ = read_plant(capture_dir)
         mesh = TriMesh.concatenate([plant.branch_mesh, plant.leaf_mesh])
         write_reconstruction(out_dir, plant.skeleton, mesh=mesh, leaves=plant.leaves)

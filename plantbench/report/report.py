@@ -1,0 +1,224 @@
+"""``plantbench report``: tables (Markdown, LaTeX, CSV, HTML) and figures of a run.
+
+Every table gives the per-method mean with its 95 % bootstrap interval over cases, overall and broken down by
+species and by plant family; failed cells are counted, never silently dropped.
+"""
+
+from __future__ import annotations
+
+import html
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from plantbench.errors import InputError
+from plantbench.io.atomic import atomic_write
+from plantbench.report.gate import read_results
+from plantbench.report.tables import KEY_METRICS, aggregate, metric_info
+
+__all__ = ["FORMATS", "wide_table", "render_table", "write_report"]
+
+FORMATS = ("md", "latex", "csv", "html")
+
+# seed 000 Table 3 columns, then ours
+PAPER_COLUMNS = (
+    ("|P|", "points.count"),
+    ("H", "skeleton.height_m"),
+    ("|B|", "skeleton.branch_count"),
+    ("l_B", "skeleton.mean_branch_length_m"),
+    ("D (cm)", "mesh_to_scan.D_cm"),
+    ("sigma (cm)", "mesh_to_scan.sigma_cm"),
+    ("S_T", "stava.S_T"),
+    ("reproj. err.", "reprojection.error"),
+    ("leaf acc.", "leaves.accuracy"),
+)
+
+
+def _cell(mean: float, lo: float, hi: float, n: int, failed: int) -> str:
+    if not np.isfinite(mean):
+        return "failed" if failed else "-"
+    text = f"{mean:.3g}"
+    if np.isfinite(lo) and n > 1:
+        text += f" [{lo:.3g}, {hi:.3g}]"
+    if failed:
+        text += f" ({failed} failed)"
+    return text
+
+
+def wide_table(table, by: tuple[str, ...] = ("method",), metrics: tuple[str, ...] | None = None,
+               labels: dict[str, str] | None = None):
+    """One row per group, one column per metric, cells 'mean [lo, hi]'. Returns a pandas DataFrame of strings."""
+    import pandas as pd
+
+    agg = aggregate(table, by)
+    if agg.empty:
+        return pd.DataFrame(columns=list(by))
+    present = list(dict.fromkeys(agg["metric"]))
+    cols = [m for m in (metrics or KEY_METRICS) if m in present] if metrics or set(KEY_METRICS) & set(present) \
+        else present
+    rows = []
+    for key, grp in agg.groupby(list(by), sort=True):
+        g = grp.set_index("metric")
+        row = dict(zip(by, key if isinstance(key, tuple) else (key,)))
+        for m in cols:
+            row[(labels or {}).get(m, m)] = _cell(*g.loc[m, ["mean", "lo", "hi", "n", "failed"]]) if m in g.index \
+                else "-"
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _unit_label(metric: str) -> str:
+    info = metric_info(metric)
+    if info is None:
+        return metric
+    arrow = "↑" if info.higher_is_better else "↓"
+    return f"{metric} ({info.unit}) {arrow}" if info.unit else f"{metric} {arrow}"
+
+
+def render_table(df, fmt: str, caption: str) -> str:
+    if fmt == "md":
+        header = "| " + " | ".join(map(str, df.columns)) + " |"
+        sep = "|" + "|".join("---" for _ in df.columns) + "|"
+        body = ["| " + " | ".join(str(v) for v in row) + " |" for row in df.itertuples(index=False)]
+        return f"**{caption}**\n\n" + "\n".join([header, sep, *body]) + "\n"
+    if fmt == "latex":
+        def esc(s: str) -> str:
+            for a, b in (("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("_", r"\_"), ("#", r"\#"),
+                         ("|", r"$|$"), ("↑", r"$\uparrow$"), ("↓", r"$\downarrow$")):
+                s = s.replace(a, b)
+            return s
+
+        cols = "l" * len(df.columns)
+        lines = [r"\begin{table}[t]", r"\centering", rf"\caption{{{esc(caption)}}}", rf"\begin{{tabular}}{{{cols}}}",
+                 r"\toprule", " & ".join(esc(str(c)) for c in df.columns) + r" \\", r"\midrule"]
+        lines += [" & ".join(esc(str(v)) for v in row) + r" \\" for row in df.itertuples(index=False)]
+        lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
+        return "\n".join(lines) + "\n"
+    if fmt == "html":
+        return f"<h2>{html.escape(caption)}</h2>\n" + df.to_html(index=False, escape=True, border=0) + "\n"
+    if fmt == "csv":
+        return df.to_csv(index=False)
+    raise InputError(f"unknown report format {fmt!r}; choose one of {', '.join(FORMATS)}")
+
+
+def _tables(table) -> list[tuple[str, str, object]]:
+    """(slug, caption, DataFrame) for every table of the report."""
+    labels = {m: _unit_label(m) for m in set(table["metric"])}
+    out = [("overall", "Per method: mean [95 % bootstrap CI] over cases", wide_table(table, ("method",), labels=labels))]
+    paper = [m for _, m in PAPER_COLUMNS if m in set(table["metric"])]
+    if paper:
+        names = {m: label for label, m in PAPER_COLUMNS}
+        out.append(("paper", "Per species and method, seed 000 Table 3 columns",
+                    wide_table(table, ("species", "method"), tuple(paper), names)))
+    out.append(("species", "Per species and method", wide_table(table, ("species", "method"), labels=labels)))
+    if "family" in table.columns:
+        out.append(("family", "Per plant family and method", wide_table(table, ("family", "method"), labels=labels)))
+    if "sweep" in table.columns and table["sweep"].notna().any():
+        out.append(("sweep", "Per sweep value and method", wide_table(table, ("sweep", "method"), labels=labels)))
+    return out
+
+
+def _figures(table, folder: Path) -> list[Path]:
+    """Bar chart per key metric (mean with 95 % CI per method), and sweep curves."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    agg = aggregate(table)
+    metrics = [m for m in KEY_METRICS if m in set(agg["metric"])]
+    if metrics:
+        fig, axes = plt.subplots(1, len(metrics), figsize=(3.2 * len(metrics), 3.2), squeeze=False)
+        for ax, m in zip(axes[0], metrics):
+            g = agg[agg["metric"] == m].sort_values("method")
+            err = np.abs(np.stack([g["mean"] - g["lo"], g["hi"] - g["mean"]]))
+            ax.bar(g["method"], g["mean"], yerr=np.nan_to_num(err), capsize=3, color="#5a8f4e")
+            ax.set_title(_unit_label(m), fontsize=9)
+            ax.tick_params(axis="x", rotation=45, labelsize=8)
+        fig.tight_layout()
+        paths.append(folder / "metrics.png")
+        fig.savefig(paths[-1], dpi=120)
+        plt.close(fig)
+    if "sweep" in table.columns and table["sweep"].notna().any():
+        sw = table[table["sweep"].notna()].copy()
+        sw["sweep_value"] = sw["sweep"].astype(float)
+        sagg = aggregate(sw, ("method", "sweep_value"))
+        metrics = [m for m in KEY_METRICS if m in set(sagg["metric"])] or sorted(set(sagg["metric"]))[:4]
+        fig, axes = plt.subplots(1, len(metrics), figsize=(3.4 * len(metrics), 3.2), squeeze=False)
+        for ax, m in zip(axes[0], metrics):
+            for method, g in sagg[sagg["metric"] == m].groupby("method"):
+                g = g.sort_values("sweep_value")
+                ax.plot(g["sweep_value"], g["mean"], marker="o", label=method)
+                ax.fill_between(g["sweep_value"], g["lo"], g["hi"], alpha=0.2)
+            ax.set_title(_unit_label(m), fontsize=9)
+            ax.set_xlabel("sweep value")
+        axes[0][0].legend(fontsize=7)
+        fig.tight_layout()
+        paths.append(folder / "sweep.png")
+        fig.savefig(paths[-1], dpi=120)
+        plt.close(fig)
+    return paths
+
+
+def write_report(run_dir: str | os.PathLike, formats: tuple[str, ...] = FORMATS, out: str | os.PathLike | None = None
+                 ) -> list[Path]:
+    """Write the report of ``run_dir`` into ``out`` (default ``run_dir/report``); return the files written."""
+    for f in formats:
+        if f not in FORMATS:
+            raise InputError(f"unknown report format {f!r}; choose one of {', '.join(FORMATS)}")
+    run_dir = Path(run_dir)
+    table = read_results(run_dir)
+    out = Path(out) if out else run_dir / "report"
+    out.mkdir(parents=True, exist_ok=True)
+    tables = _tables(table)
+    figures = _figures(table, out / "figures")
+    written = list(figures)
+    ext = {"md": "md", "latex": "tex", "csv": "csv", "html": "html"}
+    for fmt in formats:
+        if fmt == "csv":
+            for slug, _, df in tables:
+                path = out / f"{slug}.csv"
+                with atomic_write(path, "w") as fh:
+                    fh.write(render_table(df, "csv", slug))
+                written.append(path)
+            continue
+        parts = [render_table(df, fmt, caption) for _, caption, df in tables]
+        if fmt == "md":
+            body = f"# {run_dir.name}\n\n" + "\n".join(parts)
+            body += "".join(f"\n![{p.stem}](figures/{p.name})\n" for p in figures)
+        elif fmt == "html":
+            samples = _sample_views(run_dir, out)
+            body = ("<!doctype html><html><head><meta charset='utf-8'><title>plantbench report</title>"
+                    "<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}"
+                    "td,th{padding:2px 8px;border-bottom:1px solid #ddd;font-size:13px}</style></head><body>"
+                    f"<h1>{html.escape(run_dir.name)}</h1>" + "".join(parts)
+                    + "".join(f"<h2>{p.stem}</h2><img src='figures/{p.name}'>" for p in figures)
+                    + ("<h2>sample views</h2>" + "".join(f"<img src='{s}' width='256'>" for s in samples)
+                       if samples else "")
+                    + "</body></html>\n")
+        else:
+            body = "\n".join(parts)
+        path = out / f"report.{ext[fmt]}"
+        with atomic_write(path, "w") as fh:
+            fh.write(body)
+        written.append(path)
+    return written
+
+
+def _sample_views(run_dir: Path, out: Path, limit: int = 6) -> list[str]:
+    """Copy the first view of a few cases next to the report; returns relative paths."""
+    cache = run_dir.parent / "cache" / "capture"
+    if not cache.is_dir():
+        return []
+    rels = []
+    for case in sorted(cache.iterdir())[:limit]:
+        img = case / "views" / "images" / "0000.png"
+        if img.exists():
+            dst = out / "figures" / f"view_{case.name[:8]}.png"
+            shutil.copyfile(img, dst)
+            rels.append(f"figures/{dst.name}")
+    return rels

@@ -1,0 +1,185 @@
+"""Expand a suite into content-addressed jobs: plant -> capture -> (points) -> reconstruction -> metrics.
+
+Every job's key is a SHA-256 over what determines its output: its parameters, the keys of the jobs it reads, and
+a hash of the source code of the stage that computes it. A finished job's folder is reused by any run whose plan
+contains the same key, so a re-run, a resumed run or another suite sharing a plant recomputes nothing finished,
+and editing a stage's code invalidates exactly the stages downstream of it.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import inspect
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from plantbench.methods.api import ExternalCommand, method_from_spec
+from plantbench.paths import project_root
+from plantbench.suites import Suite, apply_override
+
+__all__ = ["Job", "Cell", "Plan", "make_plan", "content_hash", "code_hash"]
+
+
+def content_hash(obj: Any) -> str:
+    """SHA-256 (24 hex digits) of the canonical JSON of ``obj``."""
+    text = json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+@functools.cache
+def code_hash(*paths: str) -> str:
+    """Hash of the Python sources under ``paths`` (files or folders, relative to the project root or absolute)."""
+    h = hashlib.sha256()
+    for p in paths:
+        path = Path(p) if Path(p).is_absolute() else project_root() / p
+        files = sorted(path.rglob("*.py")) if path.is_dir() else [path] if path.exists() else []
+        for f in files:
+            h.update(str(f.relative_to(path.parent)).encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _method_code_hash(method: Any) -> str:
+    if isinstance(method, ExternalCommand):
+        return content_hash(method.argv)
+    module = inspect.getmodule(type(method))
+    src = Path(inspect.getfile(module)) if module else None
+    if src is None:
+        return "unknown"
+    root = src.parent if src.name == "__init__.py" else src
+    # a method in a package folder: hash the whole package (its helpers change its output too)
+    return code_hash(str(root.parent if root.is_file() and (root.parent / "__init__.py").exists() else root))
+
+
+_SHARED_CODE = ("plantbench/plant.py", "plantbench/io", "plantbench/cameras.py", "plantbench/skeletons.py")
+
+
+@dataclass(frozen=True)
+class Job:
+    """One unit of work, run in its own process.
+
+    kind : 'plant' | 'capture' | 'points' | 'method' | 'metrics'
+    key : content hash; the job's folder is ``cache/<kind>/<key>``
+    params : what the worker needs (JSON-serialisable)
+    deps : keys of jobs that must be finished first
+    """
+
+    kind: str
+    key: str
+    params: dict
+    deps: tuple[str, ...] = ()
+    timeout_s: float | None = None
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One (case, method) cell of the results table."""
+
+    case: str
+    species: str
+    family: str
+    seed: int
+    method: str
+    sweep_value: Any
+    recon_key: str
+    metrics_key: str
+    case_key: str
+
+
+@dataclass
+class Plan:
+    suite: Suite
+    jobs: dict[str, Job] = field(default_factory=dict)
+    cells: list[Cell] = field(default_factory=list)
+
+    def add(self, job: Job) -> str:
+        self.jobs.setdefault(job.key, job)
+        return job.key
+
+    def phases(self) -> list[list[Job]]:
+        """Jobs grouped so that each phase depends only on earlier phases."""
+        level: dict[str, int] = {}
+
+        def depth(key: str) -> int:
+            if key not in level:
+                level[key] = 1 + max((depth(d) for d in self.jobs[key].deps), default=-1)
+            return level[key]
+
+        for k in self.jobs:
+            depth(k)
+        out: list[list[Job]] = [[] for _ in range(max(level.values(), default=-1) + 1)]
+        for k, job in self.jobs.items():
+            out[level[k]].append(job)
+        return out
+
+
+def make_plan(suite: Suite, methods: list[str] | None = None) -> Plan:
+    """Expand ``suite`` (and its sweep) into jobs and cells. Unknown species or methods raise before any work."""
+    from plantbench.species import load_species, species
+
+    method_names = methods or suite.methods
+    resolved = {name: method_from_spec(name) for name in method_names}
+    variants = [(None, suite)]
+    if suite.sweep is not None:
+        variants = [(v, apply_override(suite, suite.sweep.parameter, v)) for v in suite.sweep.values]
+    plan = Plan(suite)
+    version_code = {
+        "plant": code_hash("plantbench/generate", *_SHARED_CODE),
+        "capture": code_hash("plantbench/capture", *_SHARED_CODE),
+        "metrics": code_hash("plantbench/metrics", *_SHARED_CODE),
+        "runner": code_hash("plantbench/runner/worker.py"),
+    }
+    for sweep_value, s in variants:
+        for case_set in s.cases:
+            spec = load_species(case_set.species)
+            species_bytes = species.get(case_set.species).read_bytes()
+            for seed in case_set.seeds:
+                plant_key = plan.add(Job("plant", content_hash(
+                    ["plant", case_set.species, hashlib.sha256(species_bytes).hexdigest(), seed, case_set.scale,
+                     version_code["plant"]]), {"species": case_set.species, "seed": seed, "scale": case_set.scale},
+                    timeout_s=s.timeout_s))
+                capture = s.capture.model_dump(mode="json")
+                case_key = plan.add(Job("capture", content_hash(
+                    ["capture", plant_key, capture, s.root_seed, version_code["capture"]]),
+                    {"plant": plant_key, "settings": capture, "seed": seed, "root_seed": s.root_seed},
+                    deps=(plant_key,), timeout_s=s.timeout_s))
+                case_id = f"{case_set.species}-{seed}" + (f"@{sweep_value}" if sweep_value is not None else "")
+                points_key = None
+                for name, method in resolved.items():
+                    deps = [case_key]
+                    if method.inputs == "points":
+                        if points_key is None:
+                            points_key = _points_job(plan, s, case_key, seed, case_set.species, version_code)
+                        deps.append(points_key)
+                    options = s.method_options.get(name, {})
+                    recon_key = plan.add(Job("method", content_hash(
+                        ["method", name, _method_code_hash(method), deps, options, seed, case_set.species,
+                         version_code["runner"]]),
+                        {"method": name, "case": case_key, "points": points_key if method.inputs == "points" else None,
+                         "seed": seed, "species": case_set.species, "options": options},
+                        deps=tuple(deps), timeout_s=s.timeout_s))
+                    metrics_key = plan.add(Job("metrics", content_hash(
+                        ["metrics", recon_key, version_code["metrics"]]),
+                        {"case": case_key, "recon": recon_key}, deps=(recon_key,), timeout_s=s.timeout_s))
+                    plan.cells.append(Cell(case_id, case_set.species, spec.family, seed, name, sweep_value,
+                                           recon_key, metrics_key, case_key))
+    return plan
+
+
+def _points_job(plan: Plan, s: Suite, case_key: str, seed: int, species: str, version_code: dict) -> str:
+    """The point cloud that 'points' methods reconstruct from: the mvs cloud of the views, or the scan."""
+    if s.source == "scan":
+        return plan.add(Job("points", content_hash(["points", "scan", case_key, version_code["runner"]]),
+                            {"source": "scan", "case": case_key}, deps=(case_key,), timeout_s=s.timeout_s))
+    mvs = method_from_spec("mvs")
+    options = s.method_options.get("mvs", {})
+    recon = plan.add(Job("method", content_hash(
+        ["method", "mvs", _method_code_hash(mvs), [case_key], options, seed, species, version_code["runner"]]),
+        {"method": "mvs", "case": case_key, "points": None, "seed": seed, "species": species, "options": options},
+        deps=(case_key,), timeout_s=s.timeout_s))
+    return plan.add(Job("points", content_hash(["points", "views", recon, version_code["runner"]]),
+                        {"source": "views", "case": case_key, "recon": recon}, deps=(case_key, recon),
+                        timeout_s=s.timeout_s))

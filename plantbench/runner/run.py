@@ -1,0 +1,152 @@
+"""``plantbench run``: plan a suite, execute it, write the tidy results table and the run metadata.
+
+Run folder layout (``OUT/SUITE/``): ``results.parquet``, ``results.csv`` (case, species, family, seed, method,
+sweep, metric, value, status), ``run.json`` (versions, git SHA, config hash, Mitsuba variant, counts) and
+``logs/`` (a link to the log of every failed cell). The content-addressed job cache is shared by all suites
+under ``OUT/cache/``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import subprocess
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+from plantbench.io.atomic import atomic_write, write_json
+from plantbench.paths import project_root
+from plantbench.runner.execute import ExecutionStats, execute_plan
+from plantbench.runner.plan import content_hash, make_plan
+from plantbench.runner.worker import job_folder
+from plantbench.suites import Suite
+
+__all__ = ["RunResult", "run_suite", "run_metadata", "RESULT_COLUMNS", "PACKAGES"]
+
+RESULT_COLUMNS = ["case", "species", "family", "seed", "method", "sweep", "metric", "value", "status"]
+PACKAGES = ("plantbench", "numpy", "scipy", "mitsuba", "drjit", "open3d-cpu", "pycolmap", "trimesh", "pandas",
+            "pydantic", "scikit-image", "opencv-python-headless")
+
+
+@dataclass(frozen=True)
+class RunResult:
+    run_dir: Path
+    table: object  # pandas.DataFrame
+    stats: ExecutionStats
+    seconds: float
+
+
+def _git_sha() -> str | None:
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=project_root(), capture_output=True, text=True,
+                             timeout=10)
+        sha = out.stdout.strip() if out.returncode == 0 else None
+        if sha:
+            dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=project_root(),
+                                   capture_output=True, text=True, timeout=10).stdout.strip()
+            return sha + ("-dirty" if dirty else "")
+    except (OSError, subprocess.TimeoutExpired):
+        pass
+    return None
+
+
+def run_metadata(suite: Suite, methods: list[str]) -> dict:
+    """What every results file records: versions, git SHA, config hash, Mitsuba variant."""
+    from plantbench import __version__
+    from plantbench.backend import select_variant
+
+    pkgs = {}
+    for name in PACKAGES:
+        try:
+            pkgs[name] = version(name)
+        except PackageNotFoundError:
+            pkgs[name] = None
+    config = suite.model_dump(mode="json")
+    return {
+        "plantbench_version": __version__,
+        "git_sha": _git_sha(),
+        "suite": suite.name,
+        "methods": methods,
+        "config": config,
+        "config_hash": content_hash([config, methods]),
+        "root_seed": suite.root_seed,
+        "mitsuba_variant": select_variant(),
+        "packages": pkgs,
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+    }
+
+
+def run_suite(
+    suite: Suite,
+    out: Path,
+    *,
+    methods: list[str] | None = None,
+    workers: int = 1,
+    executor: str = "local",
+    scheduler: str | None = None,
+    client=None,
+    progress: Callable[[int, int, dict], None] | None = None,
+) -> RunResult:
+    """Run ``suite`` into ``out/<suite>/`` with the shared cache ``out/cache``; return the results table."""
+    import pandas as pd
+
+    t0 = time.perf_counter()
+    plan = make_plan(suite, methods)  # validates species and methods before any work
+    method_names = methods or list(suite.methods)
+    out = Path(out)
+    cache = out / "cache"
+    run_dir = out / suite.name
+    run_dir.mkdir(parents=True, exist_ok=True)
+    meta = run_metadata(suite, method_names)
+    meta["started"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    records, stats = execute_plan(plan, cache, workers=workers, executor=executor, scheduler=scheduler,
+                                  client=client, progress=progress)
+
+    rows = []
+    metric_names: set[str] = set()
+    cell_metrics = {}
+    for cell in plan.cells:
+        rec = records[cell.recon_key]
+        m_rec = records[cell.metrics_key]
+        if rec["status"] == "ok" and m_rec["status"] == "ok":
+            values = json.loads((job_folder(cache, "metrics", cell.metrics_key) / "metrics.json").read_text())
+            cell_metrics[cell] = values
+            metric_names.update(values)
+    logs = run_dir / "logs"
+    for cell in plan.cells:
+        base = {"case": cell.case, "species": cell.species, "family": cell.family, "seed": cell.seed,
+                "method": cell.method, "sweep": None if cell.sweep_value is None else str(cell.sweep_value)}
+        rec = records[cell.recon_key]
+        if cell in cell_metrics:
+            for name, value in sorted(cell_metrics[cell].items()):
+                rows.append({**base, "metric": name, "value": value, "status": "ok"})
+            rows.append({**base, "metric": "runtime_s", "value": rec.get("seconds"), "status": "ok"})
+            continue
+        status = rec["status"] if rec["status"] != "ok" else "failed"  # ok recon, failed metrics
+        failed_key, kind = (cell.recon_key, "method") if rec["status"] != "ok" else (cell.metrics_key, "metrics")
+        for name in sorted(metric_names) or ["score"]:
+            rows.append({**base, "metric": name, "value": None, "status": status})
+        log = job_folder(cache, kind, failed_key) / "job.log"
+        if log.exists():
+            logs.mkdir(exist_ok=True)
+            link = logs / f"{cell.case}.{cell.method}.log"
+            if link.is_symlink() or link.exists():
+                link.unlink()
+            link.symlink_to(os.path.relpath(log, logs))
+    table = pd.DataFrame(rows, columns=RESULT_COLUMNS)
+    table["value"] = table["value"].astype(float)
+    with atomic_write(run_dir / "results.parquet") as fh:
+        table.to_parquet(fh, index=False)
+    with atomic_write(run_dir / "results.csv", "w") as fh:
+        table.to_csv(fh, index=False)
+    seconds = time.perf_counter() - t0
+    meta.update(finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"), seconds=seconds,
+                counts={k: v for k, v in stats.items()}, cells=len(plan.cells),
+                failed_cells=sum(1 for c in plan.cells if c not in cell_metrics))
+    write_json(run_dir / "run.json", meta)
+    return RunResult(run_dir, table, stats, seconds)

@@ -1,0 +1,120 @@
+"""Body of one job, run in its own process: ``python -m plantbench.runner.worker CACHE KIND KEY FOLDER PARAMS``.
+
+The worker writes its outputs and a ``status.json`` into FOLDER (a temporary folder the parent renames into the
+cache when the process ends). An exception becomes ``status: failed`` (or ``invalid`` for a method whose output
+breaks the contract) with the traceback in the job log; a process that dies or runs past its timeout is recorded
+by the parent.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+import traceback
+from pathlib import Path
+
+from plantbench.io.atomic import write_json
+
+__all__ = ["run_job", "job_folder"]
+
+
+def job_folder(cache: Path, kind: str, key: str) -> Path:
+    return Path(cache) / kind / key
+
+
+def _link(target: Path, link: Path) -> None:
+    """Relative symlink ``link`` -> ``target``."""
+    link.symlink_to(os.path.relpath(target, link.parent), target_is_directory=target.is_dir())
+
+
+class InvalidOutput(Exception):
+    """A method returned but its output folder breaks the contract."""
+
+
+def _validate_reconstruction(folder: Path) -> None:
+    from plantbench.io.plantio import read_reconstruction
+
+    try:
+        rec = read_reconstruction(folder)
+    except Exception as exc:  # noqa: BLE001 - any reading problem is an invalid output
+        raise InvalidOutput(str(exc)) from None
+    if rec.skeleton is not None and len(rec.skeleton) == 0:
+        raise InvalidOutput("skeleton.ply has no vertices")
+    if rec.skeleton is None and len(rec.points) == 0:
+        raise InvalidOutput("points.ply has no points")
+    if rec.mesh is not None and len(rec.mesh.faces) == 0:
+        raise InvalidOutput("mesh.ply has no faces")
+
+
+def run_job(cache: Path, kind: str, key: str, folder: Path, params: dict) -> dict:
+    """Execute one job into ``folder``; return the status record (also written to folder/status.json)."""
+    cache, folder = Path(cache), Path(folder)
+    t0 = time.perf_counter()
+    status, error = "ok", None
+    try:
+        if kind == "plant":
+            from plantbench.generate import generate_case
+
+            generate_case(params["species"], params["seed"], folder, scale=params["scale"])
+        elif kind == "capture":
+            from plantbench.capture import capture_case
+
+            _link(job_folder(cache, "plant", params["plant"]) / "plant", folder / "plant")
+            capture_case(folder, params["settings"], seed=params["seed"])
+        elif kind == "points":
+            _points(cache, folder, params)
+        elif kind == "method":
+            from plantbench.methods.api import method_from_spec
+
+            method = method_from_spec(params["method"])
+            capture_dir = job_folder(cache, "capture", params["case"])
+            if params["points"]:
+                capture_dir = job_folder(cache, "points", params["points"])
+            method.reconstruct(capture_dir, folder, seed=params["seed"], species=params["species"],
+                               **params["options"])
+            _validate_reconstruction(folder)
+        elif kind == "metrics":
+            from plantbench.metrics.evaluate import evaluate
+
+            results = evaluate(job_folder(cache, "capture", params["case"]), job_folder(cache, "method", params["recon"]))
+            write_json(folder / "metrics.json", results)
+        else:
+            raise ValueError(f"unknown job kind {kind!r}")
+    except InvalidOutput as exc:
+        status, error = "invalid", f"invalid output: {exc}"
+    except Exception as exc:  # noqa: BLE001 - a crashing stage becomes a failed job, never a lost run
+        traceback.print_exc()
+        status, error = "failed", f"{type(exc).__name__}: {exc}"
+    record = {"status": status, "error": error, "seconds": time.perf_counter() - t0, "kind": kind, "key": key}
+    write_json(folder / "status.json", record)
+    return record
+
+
+def _points(cache: Path, folder: Path, params: dict) -> None:
+    """Input folder of a 'points' method: points.ply (coordinates only) and, for view captures, views/."""
+    import shutil
+
+    from plantbench.io.ply import read_points, write_points
+
+    case = job_folder(cache, "capture", params["case"])
+    if params["source"] == "scan":
+        pts, _ = read_points(case / "scan" / "scan.ply")  # labels are ground truth: not passed on
+        write_points(folder / "points.ply", pts)
+    else:
+        src = job_folder(cache, "method", params["recon"]) / "points.ply"
+        if not src.exists():
+            raise FileNotFoundError(f"the mvs stage wrote no points.ply ({src})")
+        shutil.copyfile(src, folder / "points.ply")
+        _link(case / "views", folder / "views")
+
+
+def main(argv: list[str]) -> int:
+    cache, kind, key, folder, params = argv
+    record = run_job(Path(cache), kind, key, Path(folder), json.loads(params))
+    return 0 if record["status"] == "ok" else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
