@@ -115,13 +115,15 @@ def evaluate(
     recon: Annotated[Path, typer.Argument(help="A method's output folder.")],
     json_out: Annotated[Optional[Path], typer.Option("--json", help="Write all metrics as JSON here.")] = None,  # noqa: UP045
 ) -> None:
-    """Score a reconstruction against a case's ground truth."""
-    try:
-        from plantbench.metrics.evaluate import evaluate as run_eval
-    except ImportError:
-        _not_yet("evaluate", 5)
-    _not_yet("evaluate", 5)
-    del run_eval, json_out
+    """Score a reconstruction against a case's ground truth: every metric, components included."""
+    from plantbench.io.atomic import write_json
+    from plantbench.metrics.evaluate import evaluate_detailed, format_summary
+
+    values, reasons = evaluate_detailed(case, recon)
+    _console().print(format_summary(values, reasons))
+    if json_out is not None:
+        write_json(json_out, values)
+        typer.echo(f"wrote {json_out}")
 
 
 @app.command()

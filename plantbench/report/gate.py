@@ -56,13 +56,14 @@ def read_results(run_dir: str | os.PathLike):
     raise InputError("no results.parquet or results.csv (is this a run folder?)", path=run_dir)
 
 
-def _direction(metric: str) -> bool:
+def _direction(metric: str) -> bool | None:
+    """True/False for a registered metric with a direction; None for a descriptive value (a count, a height)."""
     from plantbench.report.tables import metric_info
 
     info = metric_info(metric)
     if info is None:
         raise InputError(f"metric {metric!r} is not registered: its direction is unknown")
-    return bool(info.higher_is_better)
+    return info.higher_is_better
 
 
 def compare(table, baseline: Baseline):
@@ -88,7 +89,10 @@ def compare(table, baseline: Baseline):
 
 
 def make_baseline(table, suite: str, *, rel_tol: float = 0.05, abs_tol: float = 1e-3) -> Baseline:
-    """A baseline from a run: every (method, metric) mean with tolerance max(abs_tol, rel_tol * |mean|)."""
+    """A baseline from a run: every (method, metric) mean with tolerance max(abs_tol, rel_tol * |mean|).
+
+    Descriptive values without a direction (counts, heights) and running times are not gated.
+    """
     from plantbench.report.tables import aggregate
 
     agg = aggregate(table, n_boot=1)
@@ -96,9 +100,11 @@ def make_baseline(table, suite: str, *, rel_tol: float = 0.05, abs_tol: float = 
     for r in agg.itertuples():
         if r.metric in UNGATED or not math.isfinite(r.mean):
             continue
+        direction = _direction(r.metric)
+        if direction is None:
+            continue
         entries.append(BaselineEntry(method=r.method, metric=r.metric, value=r.mean,
-                                     tolerance=max(abs_tol, rel_tol * abs(r.mean)),
-                                     higher_is_better=_direction(r.metric)))
+                                     tolerance=max(abs_tol, rel_tol * abs(r.mean)), higher_is_better=direction))
     return Baseline(suite=suite, entries=entries)
 
 

@@ -1,0 +1,253 @@
+"""``plantbench evaluate``: score a method's output folder against a case folder (DESIGN.md section 3).
+
+:func:`evaluate` reads the files, calls the pure metric functions and returns one flat dict, metric name -> value,
+with every registered metric present (see :data:`plantbench.metrics.info.METRICS`). A metric that cannot apply is
+None, never NaN; :func:`evaluate_detailed` also returns why:
+
+* no ``plant/`` folder (a real capture): Stava, mesh_to_surface, points, surface, skeleton and leaf metrics;
+* no ``mesh.ply`` in the output: mesh_to_scan, mesh_to_surface, reprojection, surface;
+* no ``scan/scan.ply`` and no ``plant/``: mesh_to_scan (with ``plant/`` but no scan the ground truth is a dense
+  area-uniform sample of the plant surface);
+* no ``views/cameras.json`` or instance maps: reprojection;
+* no ``leaves.json`` in the output: leaf metrics; no ``points.ply``: points metrics; no ``skeleton.ply``: Stava and
+  skeleton metrics;
+* a ground truth without leaves: the foliage part of the point and surface metrics; a trunk shorter than breast
+  height: DBH.
+
+Random samples (surface samples) come from a generator seeded by ``options.seed``: the same inputs give the same
+numbers.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from plantbench.errors import InputError
+from plantbench.metrics.info import METRICS
+from plantbench.metrics.stava import StavaParams
+
+__all__ = ["EvaluateOptions", "evaluate", "evaluate_detailed", "format_summary"]
+
+
+@dataclass(frozen=True)
+class EvaluateOptions:
+    """Everything that changes a score."""
+
+    seed: int = 0
+    """seed of the surface samples"""
+    gt_samples: int = 1_000_000
+    """area-uniform samples of the ground-truth surface (point/surface metrics; mesh_to_scan without a scan)"""
+    recon_samples: int = 200_000
+    """area-uniform samples of the reconstructed mesh (surface metrics, mesh_to_scan.area_D_cm)"""
+    skeleton_step: float = 0.001
+    """skeleton sampling step in metres (Smart-Tree: 1 mm)"""
+    breast_height: float = 1.3
+    """DBH height above the lowest skeleton node, metres"""
+    max_dist_fraction: float = 0.1
+    """DTU distance cutoff as a fraction of plant height"""
+    stava: StavaParams = field(default_factory=StavaParams)
+    """Stava similarity parameters"""
+
+
+def evaluate(case_dir: str | os.PathLike, recon_dir: str | os.PathLike, *,
+             options: EvaluateOptions = EvaluateOptions()) -> dict[str, float | None]:
+    """All metrics of one reconstruction: metric name -> value (None where it cannot apply)."""
+    return evaluate_detailed(case_dir, recon_dir, options=options)[0]
+
+
+def _set(values: dict, reasons: dict, prefix: str, result: dict | None, reason: str | None = None) -> None:
+    """Store ``result`` under ``prefix.key``, or mark every registered ``prefix.*`` metric None with ``reason``."""
+    if result is None:
+        for name in METRICS:
+            if name.startswith(prefix + ".") and name not in values:
+                values[name] = None
+                reasons[name] = reason or "not applicable"
+        return
+    for k, v in result.items():
+        name = f"{prefix}.{k}"
+        if name not in METRICS:
+            raise AssertionError(f"metric {name} is not registered")
+        if v is not None and not np.isfinite(v):
+            raise AssertionError(f"metric {name} is not finite ({v})")
+        values[name] = None if v is None else float(v)
+        if v is None:
+            reasons[name] = reason or "undefined for this input (see the metric's docstring)"
+
+
+def _read_masks(case: Path, cameras: list, images: list[str]) -> list[np.ndarray]:
+    from PIL import Image
+
+    folder = case / "views" / "instance"
+    files = sorted(p.name for p in folder.glob("*.png"))
+    if len(files) != len(cameras):
+        raise InputError(f"{len(cameras)} cameras but {len(files)} instance maps (mismatched view counts)",
+                         path=folder)
+    masks = []
+    for cam, name in zip(cameras, images):
+        path = folder / Path(name).name
+        if not path.is_file():
+            raise InputError("instance map missing for a camera", path=path)
+        m = np.array(Image.open(path))
+        if m.shape != (cam.height, cam.width):
+            raise InputError(f"instance map is {m.shape}, camera is {(cam.height, cam.width)}", path=path)
+        masks.append(m > 0)
+    return masks
+
+
+def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike, *,
+                      options: EvaluateOptions = EvaluateOptions()
+                      ) -> tuple[dict[str, float | None], dict[str, str]]:
+    """Like :func:`evaluate`, plus metric name -> reason for every None value."""
+    from plantbench.cameras import read_cameras
+    from plantbench.io.plantio import read_plant, read_reconstruction
+    from plantbench.io.ply import read_points
+    from plantbench.metrics import leaves as lv
+    from plantbench.metrics.points import cloud_metrics
+    from plantbench.metrics.reprojection import render_silhouettes, reprojection_error
+    from plantbench.metrics.skeleton import skeleton_attributes, skeleton_prf
+    from plantbench.metrics.stava import stava_similarity
+    from plantbench.metrics.surface import distance_stats_cm, mesh_to_scan, point_to_mesh_distances, sample_surface
+    from plantbench.plant import TriMesh
+    from plantbench.seeding import rng as make_rng
+
+    case, out = Path(case_dir), Path(recon_dir)
+    if not case.is_dir():
+        raise InputError("case folder not found", path=case)
+    recon = read_reconstruction(out)
+    plant = read_plant(case)[0] if (case / "plant").is_dir() else None
+    values: dict[str, float | None] = {}
+    reasons: dict[str, str] = {}
+    no_plant = "no ground truth (case has no plant/)"
+    mesh = recon.mesh
+
+    # ---- Stava and skeleton
+    for prefix, split in (("stava", True), ("stava_nosplit", False)):
+        if plant is None or recon.skeleton is None:
+            _set(values, reasons, prefix, None, no_plant if plant is None else "no skeleton.ply in the output")
+        else:
+            res = stava_similarity(plant.skeleton, recon.skeleton, params=options.stava, split_merge=split)
+            _set(values, reasons, prefix, res.as_dict())
+    if plant is None or recon.skeleton is None:
+        _set(values, reasons, "skeleton", None, no_plant if plant is None else "no skeleton.ply in the output")
+    else:
+        prf = skeleton_prf(plant.skeleton, recon.skeleton, step=options.skeleton_step)
+        a_gt = skeleton_attributes(plant.skeleton, breast_height=options.breast_height)
+        a = skeleton_attributes(recon.skeleton, breast_height=options.breast_height)
+
+        def rel(k):
+            return abs(a[k] - a_gt[k]) / a_gt[k] if a_gt[k] else None
+
+        dbh_err = abs(a["dbh_m"] - a_gt["dbh_m"]) * 100 if a["dbh_m"] is not None and a_gt["dbh_m"] is not None \
+            else None
+        _set(values, reasons, "skeleton", {
+            **prf,
+            "branch_count": a["branch_count"], "branch_count_rel_error": rel("branch_count"),
+            "total_length_m": a["total_length_m"], "total_length_rel_error": rel("total_length_m"),
+            "mean_branch_length_m": a["mean_branch_length_m"], "height_m": a["height_m"],
+            "height_error_m": abs(a["height_m"] - a_gt["height_m"]),
+            "dbh_cm": None if a["dbh_m"] is None else a["dbh_m"] * 100, "dbh_error_cm": dbh_err,
+        }, "trunk below breast height, or no branch")
+
+    # ---- ground-truth surface sample (labels 0 wood, 1 foliage)
+    gt_pts = gt_lab = None
+    if plant is not None:
+        r = make_rng(options.seed, "metrics", "gt-surface")
+        mw = plant.branch_mesh.face_areas().sum() if len(plant.branch_mesh.faces) else 0.0
+        ml = plant.leaf_mesh.face_areas().sum() if len(plant.leaf_mesh.faces) else 0.0
+        n_w = int(round(options.gt_samples * mw / (mw + ml))) if mw + ml > 0 else 0
+        pw, _ = sample_surface(plant.branch_mesh, n_w, r)
+        pl, _ = sample_surface(plant.leaf_mesh, options.gt_samples - n_w, r)
+        gt_pts = np.concatenate([pw, pl])
+        gt_lab = np.concatenate([np.zeros(len(pw), np.int64), np.ones(len(pl), np.int64)])
+        if len(gt_pts) == 0:
+            gt_pts = plant.skeleton.positions
+            gt_lab = np.zeros(len(gt_pts), np.int64)
+
+    # ---- mesh to scan / surface
+    scan_path = case / "scan" / "scan.ply"
+    scan = read_points(scan_path)[0] if scan_path.is_file() else gt_pts
+    if mesh is None:
+        _set(values, reasons, "mesh_to_scan", None, "no mesh.ply in the output")
+    elif scan is None or len(scan) == 0:
+        _set(values, reasons, "mesh_to_scan", None, "no scan/scan.ply and no ground-truth surface")
+    else:
+        m2s = mesh_to_scan(scan, mesh, rng=make_rng(options.seed, "metrics", "recon-surface"),
+                           n_area_samples=options.recon_samples)
+        _set(values, reasons, "mesh_to_scan", dict(vars(m2s)), "empty mesh (no vertices or no triangles)")
+    gt_mesh = TriMesh.concatenate([plant.branch_mesh, plant.leaf_mesh]) if plant is not None else None
+    if mesh is None or gt_mesh is None or len(gt_mesh.faces) == 0:
+        _set(values, reasons, "mesh_to_surface", None, "no mesh.ply in the output" if mesh is None else no_plant)
+    else:
+        D, s = distance_stats_cm(point_to_mesh_distances(gt_mesh, mesh.vertices))
+        _set(values, reasons, "mesh_to_surface", {"D_cm": D, "sigma_cm": s}, "empty mesh (no vertices)")
+
+    # ---- reprojection
+    cam_path = case / "views" / "cameras.json"
+    if mesh is None or not cam_path.is_file() or not (case / "views" / "instance").is_dir():
+        _set(values, reasons, "reprojection", None,
+             "no mesh.ply in the output" if mesh is None else "no views/cameras.json or views/instance/")
+    else:
+        cameras, images = read_cameras(cam_path)
+        res = reprojection_error(_read_masks(case, cameras, images), render_silhouettes(mesh, cameras))
+        err = res.per_view_error[np.isfinite(res.per_view_error)]
+        _set(values, reasons, "reprojection", {
+            "error": res.error, "error_max": float(err.max()) if len(err) else None,
+            "iou": res.iou, "iou_min": float(res.per_view_iou.min())}, "every reference mask is empty")
+
+    # ---- leaves
+    if plant is None or recon.leaves is None:
+        _set(values, reasons, "leaves", None, no_plant if plant is None else "no leaves.json in the output")
+    else:
+        counts = lv.leaf_count_metrics(len(plant.leaves), len(recon.leaves))
+        lengths = [leaf.length for leaf in plant.leaves]
+        radius = 0.5 * float(np.median(lengths)) if lengths else 1.0
+        det = lv.leaf_detection(np.array([leaf.centroid for leaf in plant.leaves]).reshape(-1, 3),
+                                np.array([leaf.centroid for leaf in recon.leaves]).reshape(-1, 3), radius=radius)
+        det.pop("matched")
+        _set(values, reasons, "leaves", {**counts, **det}, "no ground-truth leaf")
+
+    # ---- points and surface
+    height = plant.height if plant is not None else 0.0
+    if recon.points is None:
+        _set(values, reasons, "points", None, "no points.ply in the output")
+    else:
+        values["points.count"] = float(len(recon.points))
+        if plant is None or height <= 0:
+            _set(values, reasons, "points", None, no_plant)
+        else:
+            _set(values, reasons, "points", cloud_metrics(gt_pts, gt_lab, recon.points, height=height,
+                                                          max_dist_fraction=options.max_dist_fraction),
+                 "no ground-truth points of this part, or no reconstructed points")
+    if mesh is None or plant is None or height <= 0:
+        _set(values, reasons, "surface", None, "no mesh.ply in the output" if mesh is None else no_plant)
+    else:
+        pts, _ = sample_surface(mesh, options.recon_samples, make_rng(options.seed, "metrics", "recon-surface"))
+        _set(values, reasons, "surface", cloud_metrics(gt_pts, gt_lab, pts, height=height,
+                                                       max_dist_fraction=options.max_dist_fraction),
+             "no ground-truth points of this part, or an empty reconstructed surface")
+    missing = set(METRICS) - set(values)
+    if missing:
+        raise AssertionError(f"evaluate did not set {sorted(missing)}")
+    return {k: values[k] for k in METRICS}, reasons
+
+
+def format_summary(results: dict[str, float | None], reasons: dict[str, str] | None = None):
+    """A rich Table of the results: metric, value, unit, direction (and why a value is missing)."""
+    from rich.table import Table
+
+    table = Table("metric", "value", "unit", "", title="plantbench evaluate")
+    if reasons:
+        table.add_column("note")
+    for name, value in results.items():
+        info = METRICS.get(name)
+        arrow = "" if info is None or info.higher_is_better is None else ("↑" if info.higher_is_better else "↓")
+        text = "-" if value is None else f"{value:.4g}"
+        row = [name, text, info.unit if info else "", arrow]
+        if reasons:
+            row.append(reasons.get(name, "") if value is None else "")
+        table.add_row(*row)
+    return table

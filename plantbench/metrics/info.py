@@ -1,0 +1,94 @@
+"""The table of metrics: every name :func:`plantbench.metrics.evaluate.evaluate` writes, with its unit and direction.
+
+``higher_is_better`` is None for descriptive values (a count, a height) that have no better direction; the gate
+should not gate those.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from plantbench.metrics.points import TAU_FRACTIONS, tau_label
+from plantbench.metrics.skeleton import THRESHOLDS
+
+__all__ = ["MetricInfo", "METRICS"]
+
+
+@dataclass(frozen=True)
+class MetricInfo:
+    """One registered metric."""
+
+    name: str
+    """name in the results JSON, e.g. 'stava.S_T'"""
+    unit: str
+    """unit of the value ('' for a ratio or a count)"""
+    higher_is_better: bool | None
+    """direction of improvement; None for a descriptive value"""
+    description: str
+    """one line: what it measures and the reference that defines it"""
+
+
+METRICS: dict[str, MetricInfo] = {}
+
+
+def _add(name: str, unit: str, higher: bool | None, description: str) -> None:
+    assert name not in METRICS, name
+    METRICS[name] = MetricInfo(name, unit, higher, description)
+
+
+for _v, _what in (("stava", "with split/merge of chains"), ("stava_nosplit", "plain Zhang, no split/merge")):
+    _add(f"{_v}.S_T", "", True, f"Stava et al. 2014 similarity 1 - (d_S + d_G + d_T)/3, {_what}")
+    _add(f"{_v}.d_S", "", False, f"Stava shape distance (13 crown descriptors), {_what}")
+    _add(f"{_v}.d_G", "", False, f"Stava geometric distance (20 branch-statistics descriptors), {_what}")
+    _add(f"{_v}.d_T", "", False, f"Stava structural distance (normalised constrained tree edit distance), {_what}")
+
+_add("mesh_to_scan.D_cm", "cm", False, "mean distance, reconstructed mesh vertex -> nearest scan point (seed 000 D)")
+_add("mesh_to_scan.sigma_cm", "cm", False, "std of vertex -> nearest scan point distance (seed 000 sigma)")
+_add("mesh_to_scan.reverse_D_cm", "cm", False, "mean distance, scan point -> reconstructed surface")
+_add("mesh_to_scan.reverse_sigma_cm", "cm", False, "std of scan point -> reconstructed surface distance")
+_add("mesh_to_scan.area_D_cm", "cm", False, "mean distance, area-uniform sample of the reconstruction -> scan point")
+_add("mesh_to_scan.symmetric_cm", "cm", False, "(area_D + reverse_D) / 2")
+_add("mesh_to_surface.D_cm", "cm", False, "mean exact distance, reconstructed vertex -> ground-truth surface")
+_add("mesh_to_surface.sigma_cm", "cm", False, "std of exact vertex -> ground-truth surface distance")
+
+_add("reprojection.error", "", False, "Guenard Eq. 3: |render XOR reference mask| / |reference mask|, mean over views")
+_add("reprojection.error_max", "", False, "worst view's reprojection error")
+_add("reprojection.iou", "", True, "silhouette IoU with the ground-truth plant mask, mean over views")
+_add("reprojection.iou_min", "", True, "worst view's silhouette IoU")
+
+_add("leaves.count_gt", "", None, "ground-truth leaf count")
+_add("leaves.count_pred", "", None, "reconstructed leaf count")
+_add("leaves.dic", "", None, "difference in count N_pred - N_gt (CVPPP DiC)")
+_add("leaves.abs_dic", "", False, "|DiC|")
+_add("leaves.rel_error", "", False, "|DiC| / N_gt")
+_add("leaves.accuracy", "", True, "leaf-count accuracy max(0, 1 - |DiC| / N_gt)")
+_add("leaves.precision", "", True, "leaf detection precision (Hungarian centroid matching, half median leaf length)")
+_add("leaves.recall", "", True, "leaf detection recall")
+_add("leaves.f1", "", True, "leaf detection F1")
+
+_add("points.count", "", None, "number of points in the method's points.ply (seed 000 |P|)")
+for _src, _what in (("points", "the method's points.ply"), ("surface", "an area-uniform sample of mesh.ply")):
+    for _part in ("all", "wood", "foliage"):
+        _pre = f"{_src}.{_part}"
+        _add(f"{_pre}.accuracy_cm", "cm", False, f"DTU accuracy of {_what} ({_part})")
+        _add(f"{_pre}.completeness_cm", "cm", False, f"DTU completeness of {_what} ({_part})")
+        _add(f"{_pre}.chamfer_cm", "cm", False, f"(accuracy + completeness)/2 of {_what} ({_part})")
+        for _t in TAU_FRACTIONS:
+            _lab = tau_label(_t)
+            for _k, _name in (("precision", "precision"), ("recall", "recall"), ("fscore", "F-score")):
+                _add(f"{_pre}.{_k}@{_lab}", "", True,
+                     f"Tanks and Temples {_name} at tau = {_lab} of plant height, {_what} ({_part})")
+
+for _t in THRESHOLDS:
+    for _k in ("precision", "recall", "f1"):
+        _add(f"skeleton.{_k}@{_t:.1f}", "", True,
+             f"skeleton sample {_k} within {_t:g} x local ground-truth radius (Smart-Tree protocol)")
+_add("skeleton.branch_count", "", None, "reconstructed branch count (unbranched chains; seed 000 |B|)")
+_add("skeleton.branch_count_rel_error", "", False, "|branch count - GT| / GT")
+_add("skeleton.total_length_m", "m", None, "reconstructed total branch length")
+_add("skeleton.total_length_rel_error", "", False, "|total branch length - GT| / GT")
+_add("skeleton.mean_branch_length_m", "m", None, "reconstructed mean branch length (seed 000 l_B)")
+_add("skeleton.height_m", "m", None, "reconstructed skeleton height (seed 000 H)")
+_add("skeleton.height_error_m", "m", False, "|height - GT height|")
+_add("skeleton.dbh_cm", "cm", None, "reconstructed diameter at breast height (1.3 m)")
+_add("skeleton.dbh_error_cm", "cm", False, "|DBH - GT DBH|")

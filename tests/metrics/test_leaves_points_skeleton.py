@@ -1,0 +1,97 @@
+"""Leaf counts and detection, point-cloud metrics and skeleton metrics against hand or brute-force computations."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from plantbench.errors import InputError
+from plantbench.metrics.leaves import leaf_count_metrics, leaf_detection
+from plantbench.metrics.points import cloud_metrics
+from plantbench.metrics.skeleton import dbh, sample_skeleton, skeleton_attributes, skeleton_prf
+from plantbench.plant import Skeleton
+
+from .synth import random_tree
+
+
+def test_leaf_counts():
+    assert leaf_count_metrics(10, 7) == {"count_gt": 10.0, "count_pred": 7.0, "dic": -3.0, "abs_dic": 3.0,
+                                         "rel_error": 0.3, "accuracy": 0.7}
+    assert leaf_count_metrics(10, 25)["accuracy"] == 0.0
+    assert leaf_count_metrics(0, 0)["accuracy"] == 1.0 and leaf_count_metrics(0, 0)["rel_error"] is None
+    assert leaf_count_metrics(0, 2)["accuracy"] == 0.0
+
+
+def test_leaf_detection_hungarian():
+    gt = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0]], float)
+    # pred 0 is near gt 0 and 1 but must be matched to only one; pred 2 is too far from everything
+    pred = np.array([[0.5, 0, 0], [1.1, 0, 0], [5, 5, 5]], float)
+    r = leaf_detection(gt, pred, radius=0.6)
+    assert r["matched"] == 2 and r["precision"] == pytest.approx(2 / 3) and r["recall"] == pytest.approx(2 / 3)
+    assert leaf_detection(gt, np.zeros((0, 3)), radius=1)["f1"] == 0.0
+    with pytest.raises(InputError):
+        leaf_detection(gt, pred, radius=0)
+
+
+def test_cloud_metrics_brute_force(rng):
+    gt = rng.random((200, 3))
+    lab = (gt[:, 2] > 0.5).astype(np.int64)
+    pred = gt[:150] + rng.normal(0, 0.01, (150, 3))
+    pred = np.concatenate([pred, rng.random((20, 3)) + 3])  # junk far away
+    out = cloud_metrics(gt, lab, pred, height=1.0)
+    d = np.sqrt(((pred[:, None] - gt[None]) ** 2).sum(-1))
+    d_pred, nn = d.min(1), d.argmin(1)
+    d_gt = d.min(0)
+    assert out["all.accuracy_cm"] == pytest.approx(np.minimum(d_pred, 0.1).mean() * 100)
+    assert out["all.completeness_cm"] == pytest.approx(np.minimum(d_gt, 0.1).mean() * 100)
+    tau = 0.01
+    p, r = np.mean(d_pred < tau), np.mean(d_gt < tau)
+    assert out["all.precision@1%"] == pytest.approx(p) and out["all.recall@1%"] == pytest.approx(r)
+    assert out["all.fscore@1%"] == pytest.approx(2 * p * r / (p + r))
+    w = lab[nn] == 0
+    assert out["wood.precision@2%"] == pytest.approx(np.mean(d_pred[w] < 0.02))
+    assert out["foliage.recall@0.5%"] == pytest.approx(np.mean(d_gt[lab == 1] < 0.005))
+    same = cloud_metrics(gt, lab, gt, height=1.0)
+    assert same["all.fscore@0.5%"] == 1.0 and same["all.chamfer_cm"] == 0.0
+    empty = cloud_metrics(gt, lab, np.zeros((0, 3)), height=1.0)
+    assert empty["all.fscore@1%"] == 0.0 and empty["all.accuracy_cm"] is None
+    assert empty["all.completeness_cm"] == pytest.approx(10.0)
+    no_leaves = cloud_metrics(gt, np.zeros(200, np.int64), gt, height=1.0)
+    assert no_leaves["foliage.fscore@1%"] is None and no_leaves["wood.fscore@1%"] == 1.0
+
+
+def test_skeleton_prf_by_hand():
+    # GT: a vertical 1 m stem of radius 0.01; prediction: the same stem shifted 0.008 m sideways, and only its lower
+    # half. t = 0.5 -> 0.005 < 0.008: nothing matches; t = 1 -> 0.01 > 0.008: the lower half matches.
+    gt = Skeleton(np.array([[0, 0, 0], [0, 0, 1.0]]), np.array([0.01, 0.01]), np.array([-1, 0]))
+    pred = Skeleton(np.array([[0.008, 0, 0], [0.008, 0, 0.5]]), np.array([0.01, 0.01]), np.array([-1, 0]))
+    out = skeleton_prf(gt, pred, step=0.01)
+    assert out["precision@0.5"] == 0.0 and out["recall@0.5"] == 0.0 and out["f1@0.5"] == 0.0
+    assert out["precision@1.0"] == 1.0
+    assert out["recall@1.0"] == pytest.approx(0.5, abs=0.02)
+    single = Skeleton(np.zeros((1, 3)), np.ones(1) * 0.01, np.array([-1]))
+    # GT samples: z = 0, 0.001, ..., 0.999 plus both nodes (1002); within 2 r = 0.02 of the origin: z < 0.02 -> 20 + 1
+    assert skeleton_prf(gt, single)["recall@2.0"] == pytest.approx(21 / 1002)
+    empty = Skeleton(np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64))
+    assert skeleton_prf(gt, empty)["f1@1.0"] == 0.0
+    with pytest.raises(InputError):
+        skeleton_prf(empty, gt)
+
+
+def test_sample_spacing_and_attributes(rng):
+    t = random_tree(rng, 8)
+    pts, rad = sample_skeleton(t, 0.002)
+    from scipy.spatial import cKDTree
+
+    # every point of every edge is within half a step of a sample
+    e = t.edges
+    f = rng.random(len(e))[:, None]
+    q = t.positions[e[:, 0]] * (1 - f) + t.positions[e[:, 1]] * f
+    assert cKDTree(pts).query(q)[0].max() <= 0.001 + 1e-12
+    a = skeleton_attributes(t)
+    assert a["total_length_m"] == pytest.approx(np.linalg.norm(np.diff(t.positions[e], axis=1)[:, 0], axis=1).sum())
+    # DBH: a 3 m trunk with radius falling linearly 0.1 -> 0.05 over z: at 1.3 m, 2 * (0.1 - 0.05 * 1.3 / 3)
+    s = Skeleton(np.array([[0, 0, 0], [0, 0, 1.0], [0, 0, 3.0]]), np.array([0.1, 0.1 - 0.05 / 3, 0.05]),
+                 np.array([-1, 0, 1]))
+    assert dbh(s) == pytest.approx(2 * (0.1 - 0.05 * 1.3 / 3))
+    assert dbh(s, breast_height=5.0) is None
