@@ -296,7 +296,9 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     _state["debug"] = "--debug" in argv
     try:
-        app(argv, standalone_mode=False)
+        rc = app(argv, standalone_mode=False)  # returns the code of a typer.Exit in non-standalone mode
+        if isinstance(rc, int):
+            return rc
     except typer.Exit as exc:
         return exc.exit_code
     except SystemExit as exc:

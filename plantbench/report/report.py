@@ -36,7 +36,8 @@ PAPER_COLUMNS = (
 )
 
 
-def _cell(mean: float, lo: float, hi: float, n: int, failed: int) -> str:
+def _cell(mean: float, lo: float, hi: float, n: float, failed: float) -> str:
+    n, failed = int(n), int(failed)
     if not np.isfinite(mean):
         return "failed" if failed else "-"
     text = f"{mean:.3g}"

@@ -1,0 +1,120 @@
+"""Gate and report over synthetic results tables (real metric names, so directions come from the registry)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from plantbench.report.gate import Baseline, compare, make_baseline, write_baseline
+from plantbench.report.report import write_report
+from plantbench.report.tables import aggregate, bootstrap_ci
+
+
+def _table(rng, s_t_shift=0.0, d_shift=0.0, fail_case=None):
+    rows = []
+    for family, species in (("space-colonisation", "maple"), ("space-colonisation", "laurel"), ("weber-penn", "aspen")):
+        for seed in (1, 2):
+            case = f"{species}-{seed}"
+            for method, s_t, d in (("gt", 1.0, 0.0), ("livny", 0.8, 0.5)):
+                status = "failed" if (case, method) == fail_case else "ok"
+                values = {"stava.S_T": s_t - (s_t_shift if method == "livny" else 0) + rng.normal(0, 0.005),
+                          "mesh_to_scan.D_cm": d + (d_shift if method == "livny" else 0) + abs(rng.normal(0, 0.01)),
+                          "leaves.count_gt": 100.0, "runtime_s": rng.uniform(1, 5)}
+                for metric, value in values.items():
+                    rows.append({"case": case, "species": species, "family": family, "seed": seed, "method": method,
+                                 "sweep": None, "metric": metric, "value": None if status != "ok" else value,
+                                 "status": status})
+    return pd.DataFrame(rows)
+
+
+def test_bootstrap_ci_brackets_the_mean(rng):
+    v = rng.normal(3.0, 1.0, 40)
+    lo, hi = bootstrap_ci(v)
+    assert lo < v.mean() < hi
+    # the percentile interval of the mean is close to the normal-theory interval for n = 40
+    half = 1.96 * v.std(ddof=1) / np.sqrt(v.size)
+    assert hi - lo == pytest.approx(2 * half, rel=0.25)
+    assert bootstrap_ci(np.array([2.0])) == (2.0, 2.0)
+    assert all(np.isnan(bootstrap_ci(np.array([]))))
+
+
+def test_aggregate_counts_failures(rng):
+    agg = aggregate(_table(rng, fail_case=("maple-1", "livny")), ("method",))
+    row = agg[(agg["method"] == "livny") & (agg["metric"] == "stava.S_T")].iloc[0]
+    assert row["n"] == 5 and row["failed"] == 1
+
+
+def test_baseline_skips_descriptive_and_runtime(rng):
+    b = make_baseline(_table(rng), "t")
+    names = {(e.method, e.metric) for e in b.entries}
+    assert ("livny", "stava.S_T") in names and ("livny", "mesh_to_scan.D_cm") in names
+    assert not any(m in ("leaves.count_gt", "runtime_s") for _, m in names)
+    s_t = next(e for e in b.entries if e.metric == "stava.S_T")
+    d = next(e for e in b.entries if e.metric == "mesh_to_scan.D_cm")
+    assert s_t.higher_is_better is True and d.higher_is_better is False
+
+
+def test_gate_is_direction_aware(rng):
+    base = make_baseline(_table(np.random.default_rng(1)), "t")
+    same = compare(_table(np.random.default_rng(1)), base)
+    assert not same["regressed"].any()
+    worse = compare(_table(np.random.default_rng(1), s_t_shift=0.2), base)
+    assert set(worse.loc[worse["regressed"], "metric"]) == {"stava.S_T"}
+    better = compare(_table(np.random.default_rng(1), s_t_shift=-0.1, d_shift=-0.3), base)
+    assert not better["regressed"].any()
+    worse_d = compare(_table(np.random.default_rng(1), d_shift=+0.3), base)
+    assert set(worse_d.loc[worse_d["regressed"], "metric"]) == {"mesh_to_scan.D_cm"}
+
+
+def test_gate_flags_a_method_that_newly_fails():
+    rows = _table(np.random.default_rng(1))
+    base = make_baseline(rows, "t")
+    rows.loc[rows["method"] == "livny", ["value", "status"]] = [None, "failed"]
+    res = compare(rows, base)
+    assert res.loc[res["method"] == "livny", "regressed"].all()
+
+
+def test_gate_cli_names_the_regressed_metric(tmp_path):
+    good, bad = tmp_path / "good", tmp_path / "bad"
+    good.mkdir()
+    bad.mkdir()
+    _table(np.random.default_rng(1)).to_csv(good / "results.csv", index=False)
+    _table(np.random.default_rng(1), d_shift=1.0).to_csv(bad / "results.csv", index=False)
+    write_baseline(tmp_path / "baseline.json", make_baseline(pd.read_csv(good / "results.csv"), "t"))
+    cli = [sys.executable, "-m", "plantbench.cli", "gate"]
+    ok = subprocess.run([*cli, str(good), "--baseline", str(tmp_path / "baseline.json")], capture_output=True,
+                        text=True)
+    assert ok.returncode == 0, ok.stdout + ok.stderr
+    fail = subprocess.run([*cli, str(bad), "--baseline", str(tmp_path / "baseline.json")], capture_output=True,
+                          text=True, env={"COLUMNS": "200", "PATH": "/usr/bin:/bin"})
+    assert fail.returncode == 1
+    assert "mesh_to_scan.D_cm" in fail.stdout and "stava.S_T" not in fail.stdout
+
+
+def test_baseline_file_is_validated(tmp_path):
+    from plantbench.errors import InputError
+    from plantbench.report.gate import load_baseline
+
+    (tmp_path / "b.json").write_text('{"suite": "x", "entries": [{"method": "gt"}]}')
+    with pytest.raises(InputError, match="b.json: entries.0.metric: Field required"):
+        load_baseline(tmp_path / "b.json")
+    assert Baseline(suite="x", entries=[]).entries == []
+
+
+def test_report_writes_every_format_with_family_rows(tmp_path, rng):
+    run = tmp_path / "run"
+    run.mkdir()
+    _table(rng, fail_case=("aspen-2", "livny")).to_parquet(run / "results.parquet")
+    files = write_report(run)
+    names = {f.name for f in files}
+    assert {"report.md", "report.tex", "report.html", "overall.csv", "family.csv", "metrics.png"} <= names
+    md = (run / "report" / "report.md").read_text()
+    assert "weber-penn" in md and "space-colonisation" in md and "(1 failed)" in md
+    tex = (run / "report" / "report.tex").read_text()
+    assert r"\begin{tabular}" in tex and "stava.S\\_T" in tex
+    fam = pd.read_csv(run / "report" / "family.csv")
+    assert set(fam["family"]) == {"space-colonisation", "weber-penn"} and set(fam["method"]) == {"gt", "livny"}
