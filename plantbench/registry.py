@@ -81,6 +81,12 @@ class Registry(Generic[T]):
         self._ensure_loaded()
         return iter(sorted(self._items.items()))
 
+    def reset(self) -> None:
+        """Forget everything; the loader runs again on the next lookup (e.g. after PLANTBENCH_SCENES changed)."""
+        self._items.clear()
+        self._errors.clear()
+        self._loaded = self._loader is None
+
     def load_errors(self) -> dict[str, str]:
         """Plugins whose entry point failed to import: name -> error text."""
         self._ensure_loaded()

@@ -13,6 +13,9 @@ from typing import Any
 
 __all__ = ["atomic_write", "atomic_dir", "write_json", "write_bytes"]
 
+_UMASK = os.umask(0)
+os.umask(_UMASK)
+
 
 @contextlib.contextmanager
 def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator[Any]:
@@ -21,6 +24,7 @@ def atomic_write(path: str | os.PathLike, mode: str = "wb") -> Iterator[Any]:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, 0o666 & ~_UMASK)  # mkstemp creates 0600; give the file the mode open() would
         with os.fdopen(fd, mode) as fh:
             yield fh
         os.replace(tmp, path)
@@ -35,9 +39,13 @@ def write_bytes(path: str | os.PathLike, data: bytes) -> None:
         fh.write(data)
 
 
-def write_json(path: str | os.PathLike, obj: Any) -> None:
-    """Write ``obj`` as indented, key-sorted JSON (stable bytes for the same content)."""
-    text = json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n"
+def write_json(path: str | os.PathLike, obj: Any, *, compact: bool = False) -> None:
+    """Write ``obj`` as key-sorted JSON (stable bytes for the same content): indented for people to read, or
+    ``compact`` (one line, Python's C encoder: ~10x faster for large files such as a plant's leaves.json)."""
+    if compact:
+        text = json.dumps(obj, sort_keys=True, allow_nan=False, separators=(",", ":")) + "\n"
+    else:
+        text = json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n"
     write_bytes(path, text.encode())
 
 

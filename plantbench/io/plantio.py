@@ -62,7 +62,7 @@ def write_plant(case_dir: str | os.PathLike, plant: Plant, plant_json: PlantJson
         write_skeleton(tmp / "skeleton.ply", plant.skeleton)
         write_mesh(tmp / "branches.ply", plant.branch_mesh)
         write_mesh(tmp / "leaves.ply", plant.leaf_mesh, face_fields={"leaf_id": plant.leaf_mesh_ids.astype(np.int32)})
-        write_json(tmp / "leaves.json", leaves_to_json(plant.leaves))
+        write_json(tmp / "leaves.json", leaves_to_json(plant.leaves), compact=True)
         if glb is not None:
             (tmp / "plant.glb").write_bytes(glb)
     return target
@@ -128,6 +128,6 @@ def write_reconstruction(
     if mesh is not None:
         write_mesh(out / "mesh.ply", mesh)
     if leaves is not None:
-        write_json(out / "leaves.json", leaves_to_json(leaves))
+        write_json(out / "leaves.json", leaves_to_json(leaves), compact=True)
     if points is not None:
         write_points(out / "points.ply", points, point_fields)

@@ -151,7 +151,23 @@ def write_mesh(
     for key, col in extra.items():
         rec[key] = col
     face = PlyElement.describe(rec, "face", len_types={"vertex_indices": "u1"})
-    _write(path, [vert, face])
+    _write_triangles(path, vert, face, rec)
+
+
+def _write_triangles(path: str | os.PathLike, vert: PlyElement, face: PlyElement, rec: np.ndarray) -> None:
+    """Write what ``_write(path, [vert, face])`` writes, byte for byte, without plyfile's per-row loop over list
+    properties (every face has exactly three indices, so the face block is one packed numpy array)."""
+    header = PlyData([vert, face], text=False, byte_order="<").header.encode("ascii") + b"\n"
+    packed_dtype = [("n", "u1"), ("vertex_indices", "<i4", (3,))]
+    packed_dtype += [(name, rec.dtype[name].newbyteorder("<")) for name in rec.dtype.names if name != "vertex_indices"]
+    packed = np.empty(len(rec), dtype=packed_dtype)
+    packed["n"] = 3
+    for name in rec.dtype.names:
+        packed[name] = rec[name]
+    with atomic_write(path, "wb") as fh:
+        fh.write(header)
+        fh.write(vert.data.astype(vert.dtype("<"), copy=False).tobytes())
+        fh.write(packed.tobytes())
 
 
 def read_mesh(path: str | os.PathLike) -> tuple[TriMesh, dict[str, np.ndarray]]:

@@ -1,0 +1,42 @@
+"""Ground truth: procedural Xfrog-like plants with exact skeletons, branch surfaces and Bezier leaves.
+
+:data:`FAMILIES` maps a species file's ``family`` to its parameter model and growth function. Geometry shared by
+every family lives in its own modules (:mod:`.tubes` generalised cylinders and radii, :mod:`.leaf` the Bezier
+leaf, :mod:`.foliage` leaf placement); :mod:`.space_colonisation` is the Palubicki et al. growth model.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from plantbench.generate import space_colonisation as _sc
+from plantbench.generate.params import SpaceColonisationSpecies
+from plantbench.plant import Plant
+from plantbench.schemas import Strict
+
+__all__ = ["Family", "FAMILIES", "generate_case", "grow_species", "species_stats", "plant_glb"]
+
+
+@dataclass(frozen=True)
+class Family:
+    """A generator family: the model that validates its species files and the function that grows a plant."""
+
+    name: str
+    params_model: type[Strict]
+    grow: Callable[..., Plant]
+    """``grow(spec, rng, *, scale=1.0) -> Plant``"""
+
+
+FAMILIES: dict[str, Family] = {
+    "space-colonisation": Family("space-colonisation", SpaceColonisationSpecies, _sc.grow),
+}
+
+
+def __getattr__(name: str):  # lazy: case.py imports trimesh only when used
+    if name in ("generate_case", "grow_species", "species_stats", "plant_glb"):
+        from plantbench.generate import case
+
+        return getattr(case, name)
+    raise AttributeError(name)
+

@@ -1,0 +1,170 @@
+"""Leaf placement shared by every generator family: Bezier leaves on petioles at the nodes of thin branches.
+
+Leaves sit at every node thinner than ``max_branch_radius`` (Palubicki's LEAFINESS rule), arranged around the
+twig in a spiral (one leaf per node, rolling by the divergence angle), opposite-decussate (two per node, pairs
+turning by 90 degrees) or in whorls (n per node, alternate whorls offset by half the gap). The petiole leaves the
+bark at the insertion angle; the blade turns from the petiole direction towards the horizontal (``droop``), its
+upper side facing up, rolled by a random angle. Every leaf varies in length (log-normal), width (log-normal scale
+of the silhouette offsets) and bend/fold/curl (normal jitter of the out-of-plane parameters).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from plantbench.generate.leaf import PARAM_NAMES, BezierLeaf, leaf_grid, leaf_points
+from plantbench.plant import Leaf, TriMesh
+
+__all__ = ["FoliageParams", "Foliage", "place_leaves"]
+
+_Z_PARAMS = np.array([n.endswith("_z") or n[-2:] in ("z1", "z2", "z3") for n in PARAM_NAMES])
+_X_PARAMS = np.array([n.startswith("sil_x") for n in PARAM_NAMES])
+
+
+@dataclass(frozen=True)
+class FoliageParams:
+    """See :class:`plantbench.generate.params.Leaves` for each field's meaning."""
+
+    shape: BezierLeaf
+    length: float
+    arrangement: str = "spiral"
+    divergence: float = 137.5
+    whorl_count: int = 3
+    max_branch_radius: float = 0.004
+    insertion_angle: float = 50.0
+    droop: float = 0.5
+    petiole_length: float = 0.01
+    petiole_radius: float = 0.0006
+    length_sd: float = 0.15
+    width_sd: float = 0.08
+    shape_jitter: float = 0.03
+    roll_sd: float = 15.0
+    resolution: tuple[int, int] = (3, 6)
+
+
+@dataclass(frozen=True)
+class Foliage:
+    leaves: list[Leaf]
+    mesh: TriMesh
+    face_ids: np.ndarray
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(n > 1e-15, n, 1.0)
+
+
+def _axis_index(parents: np.ndarray, main: np.ndarray, levels: list[np.ndarray]) -> np.ndarray:
+    """(n,) position of each node along its axis (0 at the axis start)."""
+    k = np.zeros(len(parents), np.int64)
+    for idx in levels:
+        c = idx[(parents[idx] >= 0) & main[idx]]
+        k[c] = k[parents[c]] + 1
+    return k
+
+
+def place_leaves(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, main: np.ndarray,
+                 tangent: np.ndarray, normal: np.ndarray, levels: list[np.ndarray], params: FoliageParams,
+                 rng: np.random.Generator) -> Foliage:
+    """Leaves for a skeleton with node frames (:func:`plantbench.generate.tubes.node_frames`).
+
+    Returns the leaves (ids 0..N-1 in node order), their mesh (blades and petioles) and the per-face leaf id.
+    """
+    p = params
+    n = len(parents)
+    nodes = np.flatnonzero((parents >= 0) & (radii <= p.max_branch_radius))
+    k_axis = _axis_index(parents, main, levels)[nodes]
+    if p.arrangement == "spiral":
+        per = 1
+        az = np.radians(p.divergence) * k_axis[:, None] + np.zeros((1, 1))
+    elif p.arrangement == "opposite":
+        per = 2
+        az = 0.5 * np.pi * k_axis[:, None] + np.array([[0.0, np.pi]])
+    else:
+        per = p.whorl_count
+        gap = 2 * np.pi / per
+        az = 0.5 * gap * (k_axis[:, None] % 2) + gap * np.arange(per)[None, :]
+    m = len(nodes) * per
+    if m == 0 or n == 0:
+        return Foliage([], TriMesh.empty(), np.zeros(0, np.int64))
+    node_of = np.repeat(nodes, per)
+    az = az.ravel() + rng.normal(0.0, np.radians(10.0), m)
+    t = tangent[node_of]
+    nrm = normal[node_of]
+    b = np.cross(t, nrm)
+    radial = np.cos(az)[:, None] * nrm + np.sin(az)[:, None] * b
+    beta = np.radians(p.insertion_angle) + rng.normal(0.0, np.radians(8.0), m)
+    pet = _unit(np.cos(beta)[:, None] * t + np.sin(beta)[:, None] * radial)
+    pet_start = positions[node_of]
+    base = positions[node_of] + radii[node_of, None] * radial + p.petiole_length * pet
+    # blade axis: from the petiole direction towards the horizontal
+    horiz = pet * np.array([1.0, 1.0, 0.0])
+    hn = np.linalg.norm(horiz, axis=1)
+    horiz = np.where(hn[:, None] > 1e-6, horiz / np.maximum(hn, 1e-12)[:, None], radial * np.array([1.0, 1.0, 0.0]))
+    horiz = _unit(horiz)
+    droop = np.clip(p.droop + rng.normal(0.0, 0.1, m), 0.0, 1.0)
+    x = _unit((1 - droop)[:, None] * pet + droop[:, None] * horiz)
+    up = np.array([0.0, 0.0, 1.0])
+    z = up - (x @ up)[:, None] * x
+    bad = np.linalg.norm(z, axis=1) < 1e-6
+    z[bad] = np.cross(x[bad], radial[bad])
+    z = _unit(z)
+    roll = rng.normal(0.0, np.radians(p.roll_sd), m)
+    y = np.cross(z, x)
+    z = np.cos(roll)[:, None] * z + np.sin(roll)[:, None] * y
+    y = np.cross(z, x)
+    rot = np.stack([x, y, z], axis=2)  # columns: leaf x, y, z in world
+    # per-leaf shape and size
+    omega0 = p.shape.vector()
+    omega = np.repeat(omega0[None], m, 0)
+    omega[:, _X_PARAMS] *= np.exp(rng.normal(0.0, p.width_sd, m))[:, None]
+    omega[:, _Z_PARAMS] += rng.normal(0.0, p.shape_jitter, (m, int(_Z_PARAMS.sum())))
+    omega[:, _Z_PARAMS] = np.clip(omega[:, _Z_PARAMS], -0.5, 0.5)
+    lengths = p.length * np.exp(rng.normal(0.0, p.length_sd, m))
+    # what leaves.json records is exactly what is tessellated: round first, then build the mesh from the rounded values
+    omega = np.round(omega, 6)
+    lengths = np.round(lengths, 6)
+    rot = np.round(rot, 9)
+    base = np.round(base, 9)
+    # tessellation of every blade at once
+    u, v, tri = leaf_grid(p.resolution)
+    local = leaf_points(omega, u, v) * lengths[:, None, None]  # (m, q, 3)
+    world = np.einsum("kij,kqj->kqi", rot, local) + base[:, None, :]
+    q = local.shape[1]
+    blade_faces = (tri[None, :, :] + (np.arange(m) * q)[:, None, None]).reshape(-1, 3)
+    blade_ids = np.repeat(np.arange(m), len(tri))
+    # petioles: triangular prisms from the twig axis to the blade base
+    e = _unit(base - pet_start)
+    e1 = _unit(np.cross(e, np.where(np.abs(e[:, [2]]) < 0.9, up, np.array([1.0, 0.0, 0.0]))))
+    e2 = np.cross(e, e1)
+    th = 2 * np.pi * np.arange(3) / 3
+    ring = np.cos(th)[None, :, None] * e1[:, None, :] + np.sin(th)[None, :, None] * e2[:, None, :]
+    pr = p.petiole_radius
+    pv = np.concatenate([pet_start[:, None, :] + pr * ring, base[:, None, :] + pr * ring], axis=1)  # (m, 6, 3)
+    k = np.arange(3)
+    k1 = (k + 1) % 3
+    prism = np.concatenate([np.stack([k, k1, 3 + k1], 1), np.stack([k, 3 + k1, 3 + k], 1)])  # (6, 3)
+    off = m * q
+    pet_faces = (prism[None] + (off + np.arange(m) * 6)[:, None, None]).reshape(-1, 3)
+    pet_ids = np.repeat(np.arange(m), 6)
+    verts = np.concatenate([world.reshape(-1, 3), pv.reshape(-1, 3)])
+    faces = np.concatenate([blade_faces, pet_faces])
+    ids = np.concatenate([blade_ids, pet_ids])
+    order = np.argsort(ids, kind="stable")  # faces grouped by leaf
+    # width from both silhouettes of the unit leaf
+    vs = np.linspace(0.0, 1.0, 33)
+    right = leaf_points(omega, np.ones_like(vs), vs)[..., 1]
+    left = leaf_points(omega, -np.ones_like(vs), vs)[..., 1]
+    widths = (right.max(axis=1) - left.min(axis=1)) * lengths
+    transforms = np.zeros((m, 4, 4))
+    transforms[:, :3, :3] = rot
+    transforms[:, :3, 3] = base
+    transforms[:, 3, 3] = 1.0
+    leaves = [
+        Leaf(int(i), int(node_of[i]), transforms[i], {nm: float(val) for nm, val in zip(PARAM_NAMES, omega[i])},
+             float(lengths[i]), float(widths[i]))
+        for i in range(m)
+    ]
+    return Foliage(leaves, TriMesh(verts, faces[order]), ids[order])

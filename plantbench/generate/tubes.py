@@ -1,0 +1,207 @@
+"""Branch geometry shared by every generator family: radii, node frames and generalised-cylinder tubes.
+
+- :func:`supported_length_radii`: seed 000 Eq. 5, d_c = d_p (l_c / sum_j l_cj)^gamma, with l the branch length a
+  node supports, applied at every node (so chains taper smoothly), anchored at a twig radius.
+- :func:`node_frames`: a tangent and a parallel-transported normal per node (transport by projection, level by
+  level from the roots), continuous along each axis.
+- :func:`tube_mesh`: one ring per node (on its axis) plus one start ring per lateral at the parent node (inside
+  the parent tube, since a child is never thicker), quads between successive rings, a cone cap on every tip.
+  Ring sides follow the axis thickness. Normals point outwards (counter-clockwise seen from outside).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from plantbench.plant import TriMesh
+
+__all__ = ["depths", "main_child_mask", "supported_lengths", "supported_length_radii", "node_frames", "tube_mesh"]
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(n > 1e-15, n, 1.0)
+
+
+def _perpendicular(d: np.ndarray) -> np.ndarray:
+    a = np.where(np.abs(d[:, [0]]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    return _unit(np.cross(d, a))
+
+
+def depths(parents: np.ndarray) -> np.ndarray:
+    """(n,) int number of edges from each node to its root (parents need not precede children)."""
+    parents = np.asarray(parents, dtype=np.int64)
+    n = len(parents)
+    # level propagation from the roots
+    depth = np.full(n, -1, np.int64)
+    depth[parents < 0] = 0
+    frontier = np.flatnonzero(parents < 0)
+    kids_order = np.argsort(parents, kind="stable")
+    sorted_par = parents[kids_order]
+    d = 0
+    while len(frontier):
+        lo = np.searchsorted(sorted_par, frontier, "left")
+        hi = np.searchsorted(sorted_par, frontier, "right")
+        total = hi - lo
+        if total.sum() == 0:
+            break
+        starts = np.repeat(lo, total) + (np.arange(total.sum()) - np.repeat(np.cumsum(total) - total, total))
+        frontier = kids_order[starts]
+        d += 1
+        depth[frontier] = d
+    return depth
+
+
+def _levels(parents: np.ndarray) -> list[np.ndarray]:
+    dep = depths(parents)
+    order = np.argsort(dep, kind="stable")
+    return np.split(order, np.flatnonzero(np.diff(dep[order])) + 1)
+
+
+def supported_lengths(positions: np.ndarray, parents: np.ndarray) -> np.ndarray:
+    """(n,) branch length each node supports: its incoming internode plus everything above it, metres."""
+    n = len(parents)
+    inc = np.zeros(n)
+    has = parents >= 0
+    inc[has] = np.linalg.norm(positions[has] - positions[parents[has]], axis=1)
+    total = inc.copy()
+    for idx in reversed(_levels(parents)):
+        c = idx[parents[idx] >= 0]
+        np.add.at(total, parents[c], total[c])
+    return total
+
+
+def supported_length_radii(positions: np.ndarray, parents: np.ndarray, *, gamma: float, tip_radius: float,
+                           internode_length: float) -> np.ndarray:
+    """(n,) radii r = tip_radius (L / l)^gamma with L the supported length (Eq. 5 at every node).
+
+    At a junction the children's radii relate as in seed 000 Eq. 5; along a chain the radius shrinks with the
+    length still supported. Radii are never larger than the parent's and never below ``tip_radius / 2``.
+    """
+    sup = supported_lengths(positions, parents)
+    sup = np.where(sup > 0, sup, internode_length)
+    r = tip_radius * (sup / internode_length) ** gamma
+    return np.maximum(r, 0.5 * tip_radius)
+
+
+def main_child_mask(parents: np.ndarray, radii: np.ndarray, lateral: np.ndarray | None = None) -> np.ndarray:
+    """(n,) bool: node continues its parent's axis. Without ``lateral``, the thickest child (lowest index on ties)."""
+    n = len(parents)
+    if lateral is not None:
+        return (parents >= 0) & ~np.asarray(lateral, bool)
+    child = np.flatnonzero(parents >= 0)
+    order = np.lexsort((child, -radii[child], parents[child]))
+    c = child[order]
+    first = np.ones(len(c), bool)
+    first[1:] = parents[c][1:] != parents[c][:-1]
+    mask = np.zeros(n, bool)
+    mask[c[first]] = True
+    return mask
+
+
+def node_frames(positions: np.ndarray, parents: np.ndarray, main: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Tangents and transported normals.
+
+    Returns ``tangent (n, 3)``, ``normal (n, 3)`` at each node's own ring (tangent = bisector of the incoming and the
+    main outgoing internode), and ``start_tangent (n, 3)``, ``start_normal (n, 3)``: the frame of the start ring of a
+    lateral node (at its parent), valid where ``parents >= 0 & ~main``.
+    """
+    n = len(parents)
+    has = parents >= 0
+    e_in = np.zeros((n, 3))
+    e_in[has] = _unit(positions[has] - positions[parents[has]])
+    e_out = np.zeros((n, 3))
+    mc = np.flatnonzero(main & has)
+    e_out[parents[mc]] = e_in[mc]
+    tangent = _unit(e_in + e_out)
+    deg = np.linalg.norm(tangent, axis=1) < 1e-9
+    tangent[deg] = np.array([0.0, 0.0, 1.0])
+    normal = np.zeros((n, 3))
+    start_normal = np.zeros((n, 3))
+    for idx in _levels(parents):
+        root = parents[idx] < 0
+        r = idx[root]
+        normal[r] = _perpendicular(tangent[r])
+        c = idx[~root]
+        ref = normal[parents[c]]
+        lat = ~main[c]
+        # lateral: first through the start ring (tangent = first internode)
+        lref = ref[lat] - np.sum(ref[lat] * e_in[c[lat]], 1, keepdims=True) * e_in[c[lat]]
+        bad = np.linalg.norm(lref, axis=1) < 1e-9
+        lref[bad] = _perpendicular(e_in[c[lat]][bad])
+        start_normal[c[lat]] = _unit(lref)
+        ref[lat] = start_normal[c[lat]]
+        t = tangent[c]
+        proj = ref - np.sum(ref * t, 1, keepdims=True) * t
+        bad = np.linalg.norm(proj, axis=1) < 1e-9
+        proj[bad] = _perpendicular(t[bad])
+        normal[c] = _unit(proj)
+    return tangent, normal, e_in, start_normal
+
+
+def tube_mesh(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, main: np.ndarray, *,
+              max_sides: int = 12, min_sides: int = 4, edge_length: float = 0.02) -> TriMesh:
+    """Generalised cylinders along every axis of the skeleton.
+
+    positions : (n, 3) float; parents : (n,) int; radii : (n,) float; main : (n,) bool (see :func:`main_child_mask`)
+    edge_length : target ring edge length; an axis gets ceil(2 pi r_base / edge_length) sides, clipped.
+    """
+    n = len(parents)
+    if n == 0:
+        return TriMesh.empty()
+    tangent, normal, start_t, start_n = node_frames(positions, parents, main)
+    # axis id and its base radius (thickest ring on the axis: the first one)
+    axis = np.arange(n)
+    for idx in _levels(parents):
+        c = idx[(parents[idx] >= 0) & main[idx]]
+        axis[c] = axis[parents[c]]
+    base_r = radii[axis]
+    sides = np.clip(np.ceil(2 * np.pi * base_r / edge_length).astype(np.int64), min_sides, max_sides)
+    lateral = np.flatnonzero((parents >= 0) & ~main)
+    # rings: 0..n-1 node rings, n.. start rings of laterals
+    ring_centre = np.concatenate([positions, positions[parents[lateral]]])
+    ring_r = np.concatenate([radii, radii[lateral]])
+    ring_t = np.concatenate([tangent, start_t[lateral]])
+    ring_n = np.concatenate([normal, start_n[lateral]])
+    ring_s = np.concatenate([sides, sides[lateral]])
+    ring_b = np.cross(ring_t, ring_n)
+    nr = len(ring_centre)
+    ring_off = np.zeros(nr + 1, np.int64)
+    ring_off[1:] = np.cumsum(ring_s)
+    start_ring = np.full(n, -1, np.int64)
+    start_ring[lateral] = n + np.arange(len(lateral))
+    verts = np.zeros((ring_off[-1], 3))
+    for s in np.unique(ring_s):
+        rg = np.flatnonzero(ring_s == s)
+        th = 2 * np.pi * np.arange(s) / s
+        ring = (np.cos(th)[None, :, None] * ring_n[rg, None, :] + np.sin(th)[None, :, None] * ring_b[rg, None, :])
+        pts = ring_centre[rg, None, :] + ring_r[rg, None, None] * ring
+        verts[(ring_off[rg][:, None] + np.arange(s)[None, :]).ravel()] = pts.reshape(-1, 3)
+    faces = []
+    child = np.flatnonzero(parents >= 0)
+    a_ring = np.where(main[child], parents[child], start_ring[child])
+    b_ring = child
+    for s in np.unique(sides[child]):
+        sel = sides[child] == s
+        a0 = ring_off[a_ring[sel]][:, None]
+        b0 = ring_off[b_ring[sel]][:, None]
+        k = np.arange(s)[None, :]
+        k1 = (k + 1) % s
+        t1 = np.stack([a0 + k, a0 + k1, b0 + k1], -1)
+        t2 = np.stack([a0 + k, b0 + k1, b0 + k], -1)
+        faces.append(np.concatenate([t1, t2], 1).reshape(-1, 3))
+    # cone caps on tips (nodes with no main child)
+    has_main = np.zeros(n, bool)
+    has_main[parents[child[main[child]]]] = True
+    tips = np.flatnonzero(~has_main & (parents >= 0))
+    apex = positions[tips] + tangent[tips] * radii[tips, None]
+    apex_id = len(verts) + np.arange(len(tips))
+    verts = np.concatenate([verts, apex])
+    for s in np.unique(sides[tips]):
+        sel = sides[tips] == s
+        a0 = ring_off[tips[sel]][:, None]
+        k = np.arange(s)[None, :]
+        ap = np.broadcast_to(apex_id[sel][:, None], (sel.sum(), s))
+        faces.append(np.stack([a0 + k, a0 + (k + 1) % s, ap], -1).reshape(-1, 3))
+    return TriMesh(verts, np.concatenate(faces) if faces else np.zeros((0, 3), np.int64))
