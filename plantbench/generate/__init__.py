@@ -2,7 +2,8 @@
 
 :data:`FAMILIES` maps a species file's ``family`` to its parameter model and growth function. Geometry shared by
 every family lives in its own modules (:mod:`.tubes` generalised cylinders and radii, :mod:`.leaf` the Bezier
-leaf, :mod:`.foliage` leaf placement); :mod:`.space_colonisation` is the Palubicki et al. growth model.
+leaf, :mod:`.foliage` leaf placement); :mod:`.space_colonisation` is the Palubicki et al. growth model,
+:mod:`.weber_penn` the Weber and Penn 1995 recursive stems (species files with ``family = "weber-penn"``).
 """
 
 from __future__ import annotations
@@ -11,7 +12,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from plantbench.generate import space_colonisation as _sc
+from plantbench.generate import weber_penn as _wp
 from plantbench.generate.params import SpaceColonisationSpecies
+from plantbench.generate.params_wp import WeberPennSpecies
 from plantbench.plant import Plant
 from plantbench.schemas import Strict
 
@@ -30,6 +33,7 @@ class Family:
 
 FAMILIES: dict[str, Family] = {
     "space-colonisation": Family("space-colonisation", SpaceColonisationSpecies, _sc.grow),
+    "weber-penn": Family("weber-penn", WeberPennSpecies, _wp.grow),
 }
 
 

@@ -67,15 +67,27 @@ def _axis_index(parents: np.ndarray, main: np.ndarray, levels: list[np.ndarray])
 
 def place_leaves(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, main: np.ndarray,
                  tangent: np.ndarray, normal: np.ndarray, levels: list[np.ndarray], params: FoliageParams,
-                 rng: np.random.Generator) -> Foliage:
+                 rng: np.random.Generator, *, nodes: np.ndarray | None = None, axis_index: np.ndarray | None = None,
+                 length_factor: np.ndarray | None = None) -> Foliage:
     """Leaves for a skeleton with node frames (:func:`plantbench.generate.tubes.node_frames`).
+
+    nodes : (k,) int, increasing, optional
+        The nodes that bear leaves; default: every non-root node thinner than ``params.max_branch_radius``.
+    axis_index : (k,) int, optional
+        Phyllotaxis step of each of ``nodes`` (the spiral/decussate/whorl roll counts it); default: the node's
+        position along its axis.
+    length_factor : (k,) float, optional
+        Multiplies the blade length of the leaves at each of ``nodes`` (size profiles along a twig); default 1.
 
     Returns the leaves (ids 0..N-1 in node order), their mesh (blades and petioles) and the per-face leaf id.
     """
     p = params
     n = len(parents)
-    nodes = np.flatnonzero((parents >= 0) & (radii <= p.max_branch_radius))
-    k_axis = _axis_index(parents, main, levels)[nodes]
+    if nodes is None:
+        nodes = np.flatnonzero((parents >= 0) & (radii <= p.max_branch_radius))
+    else:
+        nodes = np.asarray(nodes, dtype=np.int64)
+    k_axis = _axis_index(parents, main, levels)[nodes] if axis_index is None else np.asarray(axis_index, np.int64)
     if p.arrangement == "spiral":
         per = 1
         az = np.radians(p.divergence) * k_axis[:, None] + np.zeros((1, 1))
@@ -123,6 +135,8 @@ def place_leaves(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, 
     omega[:, _Z_PARAMS] += rng.normal(0.0, p.shape_jitter, (m, int(_Z_PARAMS.sum())))
     omega[:, _Z_PARAMS] = np.clip(omega[:, _Z_PARAMS], -0.5, 0.5)
     lengths = p.length * np.exp(rng.normal(0.0, p.length_sd, m))
+    if length_factor is not None:
+        lengths = lengths * np.repeat(np.asarray(length_factor, dtype=np.float64), per)
     # what leaves.json records is exactly what is tessellated: round first, then build the mesh from the rounded values
     omega = np.round(omega, 6)
     lengths = np.round(lengths, 6)
