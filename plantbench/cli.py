@@ -163,7 +163,7 @@ def run(
     st = result.stats
     console.print(
         f"{result.run_dir}: {st['computed']} jobs computed, {st['reused']} reused from the cache, "
-        f"{st['failed']} failed, {result.seconds:.1f} s"
+        f"{st['failed']} failed ({st['skipped']} skipped after an upstream failure), {result.seconds:.1f} s"
     )
     from plantbench.report.tables import summary_table
 

@@ -18,7 +18,10 @@ from plantbench.io.atomic import atomic_write
 from plantbench.report.gate import read_results
 from plantbench.report.tables import KEY_METRICS, aggregate, metric_info
 
-__all__ = ["FORMATS", "wide_table", "render_table", "write_report"]
+__all__ = ["FORMATS", "wide_table", "render_table", "write_report", "family_ranking", "family_study"]
+
+ORACLES = ("gt",)
+STUDY_METRICS = ("stava.S_T", "mesh_to_scan.D_cm", "reprojection.error", "skeleton.f1@1.0", "leaves.accuracy")
 
 FORMATS = ("md", "latex", "csv", "html")
 
@@ -178,6 +181,11 @@ def write_report(run_dir: str | os.PathLike, formats: tuple[str, ...] = FORMATS,
     tables = _tables(table)
     figures = _figures(table, out / "figures")
     written = list(figures)
+    if "family" in table.columns and table["family"].nunique() > 1:
+        path = out / "family_study.md"
+        with atomic_write(path, "w") as fh:
+            fh.write(family_study(table))
+        written.append(path)
     ext = {"md": "md", "latex": "tex", "csv": "csv", "html": "html"}
     for fmt in formats:
         if fmt == "csv":
@@ -208,6 +216,60 @@ def write_report(run_dir: str | os.PathLike, formats: tuple[str, ...] = FORMATS,
             fh.write(body)
         written.append(path)
     return written
+
+
+def family_ranking(table, metrics: tuple[str, ...] = STUDY_METRICS):
+    """Per family and metric, the non-oracle methods ranked best first by their mean over the family's cases.
+
+    Returns a DataFrame: family, metric, rank, method, mean, n.
+    """
+    import pandas as pd
+
+    agg = aggregate(table[~table["method"].isin(ORACLES)], ("family", "method"), n_boot=1)
+    rows = []
+    for (family, metric), g in agg[agg["metric"].isin(metrics)].groupby(["family", "metric"], sort=True):
+        info = metric_info(metric)
+        if info is None or info.higher_is_better is None:
+            continue
+        g = g[np.isfinite(g["mean"])].sort_values("mean", ascending=not info.higher_is_better)
+        for rank, r in enumerate(g.itertuples(), start=1):
+            rows.append({"family": family, "metric": metric, "rank": rank, "method": r.method, "mean": r.mean,
+                         "n": r.n})
+    return pd.DataFrame(rows, columns=["family", "metric", "rank", "method", "mean", "n"])
+
+
+def family_study(table, metrics: tuple[str, ...] = STUDY_METRICS) -> str:
+    """A short Markdown study: does any method's advantage depend on the plant family (the inverse crime)?
+
+    For each metric, the ranking of methods on each family, and Kendall's tau between the families' rankings
+    (1: the same order on every family; lower: the order depends on the family).
+    """
+    from scipy.stats import kendalltau
+
+    ranking = family_ranking(table, metrics)
+    families = sorted(ranking["family"].unique())
+    lines = ["# Method ranking per plant family", "",
+             "The generator's space-colonisation family shares its growth model with the guo reference method; the "
+             "Weber-Penn family does not. A method whose rank drops on Weber-Penn plants owes part of its score to "
+             "that shared model. Oracle rows (gt) are left out; means over each family's cases.", ""]
+    if len(families) < 2:
+        lines.append(f"Only one family in this run ({', '.join(families) or 'none'}): nothing to compare.")
+        return "\n".join(lines) + "\n"
+    lines += ["| metric | " + " | ".join(families) + " | Kendall tau |", "|---" * (len(families) + 2) + "|"]
+    for metric, g in ranking.groupby("metric", sort=True):
+        orders = {f: list(g[g["family"] == f].sort_values("rank")["method"]) for f in families}
+        cells = [" > ".join(f"{m} ({g[(g['family'] == f) & (g['method'] == m)]['mean'].iloc[0]:.3g})"
+                            for m in orders[f]) or "-" for f in families]
+        common = [m for m in orders[families[0]] if all(m in orders[f] for f in families)]
+        taus = []
+        for f in families[1:]:
+            if len(common) >= 2:
+                tau = kendalltau([orders[families[0]].index(m) for m in common],
+                                 [orders[f].index(m) for m in common]).statistic
+                taus.append(f"{tau:.2f}")
+        lines.append(f"| {metric} | " + " | ".join(cells) + f" | {', '.join(taus) or '-'} |")
+    lines += ["", "Read: `a (x) > b (y)` ranks a above b with family means x and y."]
+    return "\n".join(lines) + "\n"
 
 
 def _sample_views(run_dir: Path, out: Path, limit: int = 6) -> list[str]:

@@ -127,7 +127,7 @@ def kill_running() -> int:
 
 
 class ExecutionStats(dict):
-    """Counts per outcome: computed, reused, failed (and per kind under 'by_kind')."""
+    """Counts per outcome: computed, reused (from the cache), skipped (upstream failed), failed (and per kind)."""
 
 
 def execute_plan(
@@ -146,18 +146,18 @@ def execute_plan(
     phases = plan.phases()
     total = sum(len(p) for p in phases)
     results: dict[str, dict] = {}
-    stats = ExecutionStats(computed=0, reused=0, failed=0, by_kind={})
+    stats = ExecutionStats(computed=0, reused=0, skipped=0, failed=0, by_kind={})
     done = 0
 
     def record(job: Job, rec: dict) -> None:
         nonlocal done
         results[job.key] = rec
         done += 1
-        outcome = "reused" if rec.get("reused") else "computed"
+        outcome = "reused" if rec.get("reused") else "skipped" if rec.get("upstream") else "computed"
         stats[outcome] += 1
         if rec["status"] != "ok":
             stats["failed"] += 1
-        kind_stats = stats["by_kind"].setdefault(job.kind, {"computed": 0, "reused": 0, "failed": 0})
+        kind_stats = stats["by_kind"].setdefault(job.kind, {"computed": 0, "reused": 0, "skipped": 0, "failed": 0})
         kind_stats[outcome] += 1
         kind_stats["failed"] += rec["status"] != "ok"
         if progress:

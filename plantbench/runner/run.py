@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import re
 import subprocess
 import time
 from collections.abc import Callable
@@ -38,6 +39,12 @@ class RunResult:
     table: object  # pandas.DataFrame
     stats: ExecutionStats
     seconds: float
+
+
+def _slug(text: str) -> str:
+    """A file-name-safe version of a case or method name (external commands contain paths and spaces)."""
+    safe = re.sub(r"[^A-Za-z0-9._@-]+", "_", text).strip("_")
+    return safe if len(safe) <= 60 else safe[:40] + "-" + content_hash(text)[:8]
 
 
 def _git_sha() -> str | None:
@@ -134,7 +141,7 @@ def run_suite(
         log = job_folder(cache, kind, failed_key) / "job.log"
         if log.exists():
             logs.mkdir(exist_ok=True)
-            link = logs / f"{cell.case}.{cell.method}.log"
+            link = logs / f"{_slug(cell.case)}.{_slug(cell.method)}.log"
             if link.is_symlink() or link.exists():
                 link.unlink()
             link.symlink_to(os.path.relpath(log, logs))

@@ -118,3 +118,23 @@ def test_report_writes_every_format_with_family_rows(tmp_path, rng):
     assert r"\begin{tabular}" in tex and "stava.S\\_T" in tex
     fam = pd.read_csv(run / "report" / "family.csv")
     assert set(fam["family"]) == {"space-colonisation", "weber-penn"} and set(fam["method"]) == {"gt", "livny"}
+
+
+def test_family_study_ranks_methods_per_family(tmp_path, rng):
+    from plantbench.report.report import family_ranking, family_study
+
+    t = _table(rng)
+    # make livny the best on weber-penn only (it beats a third method there, loses to it elsewhere)
+    third = t[t["method"] == "livny"].copy()
+    third["method"] = "xu"
+    wp = third["family"] == "weber-penn"
+    third.loc[(third["metric"] == "stava.S_T") & ~wp, "value"] += 0.1
+    third.loc[(third["metric"] == "stava.S_T") & wp, "value"] -= 0.1
+    t = pd.concat([t, third], ignore_index=True)
+    ranking = family_ranking(t)
+    s_t = ranking[ranking["metric"] == "stava.S_T"]
+    assert list(s_t[s_t["family"] == "space-colonisation"].sort_values("rank")["method"]) == ["xu", "livny"]
+    assert list(s_t[s_t["family"] == "weber-penn"].sort_values("rank")["method"]) == ["livny", "xu"]
+    assert "gt" not in set(ranking["method"])
+    text = family_study(t)
+    assert "| stava.S_T |" in text and "-1.00" in text
