@@ -84,11 +84,20 @@ def capture(
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
 ) -> None:
     """Render multi-view images with exact depth/instance maps and cameras, and simulate a laser scan."""
+    from plantbench.capture import as_options, capture_case
+
     try:
-        from plantbench.capture import capture_case  # noqa: F401
-    except ImportError:
-        _not_yet("capture", 4)
-    _not_yet("capture", 4)
+        w, h = (int(x) for x in size.lower().split("x"))
+    except ValueError:
+        raise InputError(f"--size must look like 512x512, got {size!r}") from None
+    try:
+        lo, hi = (float(x) for x in elevation.split(","))
+    except ValueError:
+        raise InputError(f"--elevation must look like 5,45, got {elevation!r}") from None
+    options = as_options({"views": views, "width": w, "height": h, "spp": spp, "elevation": (lo, hi), "scan": scan,
+                          "stations": stations})
+    folder = capture_case(case, options, seed=seed)
+    typer.echo(f"{folder}: {views} views at {w}x{h}, {spp} spp" + (f"; scan from {stations} station(s)" if scan else ""))
 
 
 @app.command()

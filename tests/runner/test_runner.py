@@ -1,0 +1,106 @@
+"""End-to-end runner behaviour on a tiny suite: failures become cells, caching, resume after SIGINT, Dask."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import pandas as pd
+import pytest
+
+from plantbench.runner import run_suite
+from plantbench.suites import load_suite
+from tests.runner.conftest import suite_toml
+
+
+def _status(table: pd.DataFrame, method: str) -> set[str]:
+    return set(table.loc[table["method"] == method, "status"])
+
+
+def test_failures_become_cells_and_rerun_reuses_everything(tmp_path, scripts):
+    methods = ["gt", scripts["crash"], scripts["sleep"], scripts["empty"]]
+    suite = load_suite(str(suite_toml(tmp_path / "tiny.toml", methods, timeout_s=20)))
+    res = run_suite(suite, tmp_path / "runs", workers=2)
+    t = res.table
+    assert _status(t, "gt") == {"ok"}
+    gt = t[(t["method"] == "gt")].set_index("metric")["value"]
+    assert gt["stava.S_T"] == pytest.approx(1.0)
+    assert _status(t, scripts["crash"]) == {"failed"}
+    assert _status(t, scripts["sleep"]) == {"timeout"}
+    assert _status(t, scripts["empty"]) == {"invalid"}
+    # every failed cell keeps its log, and the log says why
+    logs = {p.name: p.read_text() for p in (res.run_dir / "logs").iterdir()}
+    assert any("method exploded on purpose" in text for text in logs.values())
+    assert len(logs) == 3
+    # the tidy table and metadata are on disk
+    disk = pd.read_parquet(res.run_dir / "results.parquet")
+    assert list(disk.columns) == ["case", "species", "family", "seed", "method", "sweep", "metric", "value", "status"]
+    meta = json.loads((res.run_dir / "run.json").read_text())
+    for key in ("plantbench_version", "git_sha", "config_hash", "packages", "mitsuba_variant"):
+        assert key in meta
+    # a second run recomputes nothing
+    again = run_suite(suite, tmp_path / "runs", workers=2)
+    assert again.stats["computed"] == 0 and again.stats["reused"] == res.stats["computed"] + res.stats["reused"]
+    assert again.stats["skipped"] == res.stats["skipped"] == 3  # metrics of the three failed cells
+    pd.testing.assert_frame_equal(
+        again.table.drop(columns="value"), res.table.drop(columns="value"), check_like=True
+    )
+
+
+def test_sigint_then_resume_recomputes_nothing_finished(tmp_path, scripts):
+    toml = suite_toml(tmp_path / "resume.toml", [scripts["slow_ok"]], seeds=(1, 2, 3, 4), timeout_s=120)
+    out = tmp_path / "runs"
+    cmd = [sys.executable, "-m", "plantbench.cli", "run", "--suite", str(toml), "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    method_dir = out / "cache" / "method"
+    deadline = time.time() + 240
+    # interrupt once at least one method cell (1.5 s each) has finished but not all four
+    while time.time() < deadline:
+        done = [p for p in method_dir.glob("[!.]*") if (p / "status.json").exists()] if method_dir.exists() else []
+        if done:
+            break
+        time.sleep(0.1)
+    assert done, "no method cell finished in time"
+    proc.send_signal(signal.SIGINT)
+    output, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 130, output
+    assert "resume" in output
+    finished = {p.name: (p / "status.json").stat().st_mtime_ns for p in method_dir.iterdir() if not p.name.startswith(".")}
+    assert 1 <= len(finished) < 4
+    assert not [p for p in method_dir.iterdir() if p.name.endswith(".tmp")], "temporary folders left behind"
+    res = run_suite(load_suite(str(toml)), out)
+    assert set(res.table["status"]) == {"ok"}
+    # the cells finished before the interrupt were reused, untouched
+    for name, mtime in finished.items():
+        assert (method_dir / name / "status.json").stat().st_mtime_ns == mtime
+    assert res.stats["by_kind"]["method"]["reused"] == len(finished)
+    assert res.stats["by_kind"]["method"]["computed"] == 4 - len(finished)
+
+
+def test_dask_local_cluster_gives_the_same_table(tmp_path):
+    distributed = pytest.importorskip("dask.distributed")
+    toml = suite_toml(tmp_path / "dask.toml", ["gt"], seeds=(1, 2))
+    suite = load_suite(str(toml))
+    local = run_suite(suite, tmp_path / "local", workers=1)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        with distributed.Client(cluster) as client:
+            remote = run_suite(suite, tmp_path / "dask", executor="dask", client=client)
+    assert remote.stats["computed"] == local.stats["computed"]
+    keep = local.table["metric"] != "runtime_s"
+    a = local.table[keep].reset_index(drop=True)
+    b = remote.table[remote.table["metric"] != "runtime_s"].reset_index(drop=True)
+    pd.testing.assert_frame_equal(a, b)
+
+
+def test_unknown_species_fails_before_any_work(tmp_path):
+    from plantbench.errors import UnknownNameError
+
+    toml = suite_toml(tmp_path / "bad.toml", ["gt"], species="lauurel")
+    with pytest.raises(UnknownNameError, match="did you mean 'laurel'"):
+        run_suite(load_suite(str(toml)), tmp_path / "runs")
+    assert not (tmp_path / "runs" / "cache").exists()
+
+
