@@ -1,0 +1,85 @@
+"""Dense depth for one 512 x 512 reference view with 4 neighbours and 128 depth hypotheses (plane sweep + PatchMatch,
+Dr.Jit LLVM), beside a bare OpenCV StereoSGBM on one rectified pair of the same views (256 disparities, SGBM_3WAY).
+
+The views come from the capture in ``$PLANTBENCH_MVS_CASE`` when set (a case folder with views/), else from the
+analytic textured scene of reference_impl.mvs.synthetic (20 views on a ring, 512 px; 5 of them rendered).
+The Dr.Jit kernels are compiled (or loaded from the kernel cache) in a warm-up call outside the timing.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from reference_impl.mvs.neighbours import depth_range, scene_centre, select_neighbours
+from reference_impl.mvs.params import DepthParams
+from reference_impl.mvs.patchmatch import estimate_depth
+
+
+@pytest.fixture(scope="module")
+def views():
+    """(reference image, [4 source images], reference camera, [source cameras], depth range, ground-truth depth)."""
+    case = os.environ.get("PLANTBENCH_MVS_CASE")
+    if case:
+        from reference_impl.mvs.method import load_views
+
+        images, cams, names = load_views(case)
+        nb = select_neighbours(cams)
+        ref = 0
+        gt = np.load(Path(case) / "views" / "depth" / f"{Path(names[ref]).stem}.npy")
+        imgs = {i: images[i] for i in [ref, *nb[ref]]}
+    else:
+        from reference_impl.mvs import synthetic
+
+        cams = synthetic.ring_cameras(20, width=512, height=512)
+        nb = select_neighbours(cams)
+        ref = 0
+        scene = synthetic.default_scene()
+        rendered = {i: synthetic.render(scene, cams[i], supersample=1) for i in [ref, *nb[ref]]}
+        imgs = {i: r[0] for i, r in rendered.items()}
+        gt = rendered[ref][1]
+    rng_ = depth_range(cams[ref], scene_centre(cams), DepthParams().depth_margin)
+    return imgs[ref], [imgs[j] for j in nb[ref]], cams[ref], [cams[j] for j in nb[ref]], rng_, gt
+
+
+@pytest.mark.benchmark(group="dense-depth-512")
+def test_plantbench_depth_4_neighbours_128_planes(benchmark, views):
+    ref, srcs, cam, src_cams, rng_, gt = views
+    params = DepthParams(hypotheses=128)
+    estimate_depth(ref, srcs, cam, src_cams, rng_, params, rng=np.random.default_rng(0))  # kernels compiled/loaded
+    dm = benchmark.pedantic(
+        estimate_depth, args=(ref, srcs, cam, src_cams, rng_, params), kwargs={"rng": np.random.default_rng(0)},
+        rounds=3, iterations=1,
+    )
+    ok = np.isfinite(dm.depth) & np.isfinite(gt)
+    rel = np.abs(dm.depth[ok] - gt[ok]) / gt[ok]
+    benchmark.extra_info.update(
+        matched=float(ok.mean()), median_rel_error=float(np.median(rel)), within_1pct=float(np.mean(rel < 0.01))
+    )
+    assert ok.any()
+
+
+@pytest.mark.benchmark(group="dense-depth-512")
+def test_bare_opencv_sgbm_one_rectified_pair(benchmark, views):
+    import cv2
+
+    ref, srcs, cam, src_cams, _, gt = views
+    other = src_cams[0]
+    r_rel = other.R @ cam.R.T
+    t_rel = (other.t - r_rel @ cam.t).reshape(3, 1)  # stereoRectify wants (3, 1) (notes/stack.md section 5)
+    size = (cam.width, cam.height)
+    r1, r2, p1, p2, _, _, _ = cv2.stereoRectify(cam.K, np.zeros(5), other.K, np.zeros(5), size, r_rel, t_rel,
+                                                flags=0, alpha=-1)
+    m1 = cv2.initUndistortRectifyMap(cam.K, np.zeros(5), r1, p1, size, cv2.CV_32FC1)
+    m2 = cv2.initUndistortRectifyMap(other.K, np.zeros(5), r2, p2, size, cv2.CV_32FC1)
+    left = cv2.remap(cv2.cvtColor(ref, cv2.COLOR_RGB2GRAY), *m1, cv2.INTER_LINEAR)
+    right = cv2.remap(cv2.cvtColor(srcs[0], cv2.COLOR_RGB2GRAY), *m2, cv2.INTER_LINEAR)
+    bs = 5
+    sgbm = cv2.StereoSGBM_create(minDisparity=-128, numDisparities=256, blockSize=bs, P1=8 * bs * bs,
+                                 P2=32 * bs * bs, disp12MaxDiff=1, uniquenessRatio=10, speckleWindowSize=100,
+                                 speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+    disp = benchmark(sgbm.compute, left, right)
+    benchmark.extra_info["matched"] = float(np.mean(disp > sgbm.getMinDisparity() * 16))

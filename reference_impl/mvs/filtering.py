@@ -1,0 +1,166 @@
+"""Depth refinement: geometric coherence across views and the edge-aware guided filter.
+
+Seed 000 Eq. 3-4 score a depth by photo-consistency times a geometric-coherence term m_v against the other views'
+depths and minimise with graph cuts. We keep its intent with the standard multi-view consistency test (COLMAP
+fusion, Zhang et al. 2009's m_v as a hard threshold): a pixel's depth survives when at least ``min_consistent``
+other views agree with it (forward-backward reprojection error below ``reproj_px`` and relative depth difference
+below ``rel_depth``), the photo-consistency part having been enforced by the matching-cost threshold. The same
+pass counts free-space violations (another view saw *through* the point) for visibility-consistent fusion.
+Deviation from the seed: no graph-cut optimisation (documented in the method's notes).
+
+The guided filter is He, Sun and Tang (ECCV 2010 / TPAMI 2013), Eq. (13)-(14) with box means; the masked variant
+weights every box mean by the validity mask, and reduces to the original filter when the mask is all ones.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from plantbench.cameras import Camera
+from plantbench.errors import InputError
+
+__all__ = ["box_mean", "guided_filter", "masked_guided_filter", "consistency_counts", "nearest_views"]
+
+
+def box_mean(x: np.ndarray, radius: int) -> np.ndarray:
+    """Mean over the (2 r + 1)^2 window, the window shrunk at the borders (not padded), float64."""
+    x = np.asarray(x, np.float64)
+    h, w = x.shape
+    c = np.zeros((h + 1, w + 1))
+    c[1:, 1:] = x.cumsum(0).cumsum(1)
+    y0 = np.clip(np.arange(h) - radius, 0, h)
+    y1 = np.clip(np.arange(h) + radius + 1, 0, h)
+    x0 = np.clip(np.arange(w) - radius, 0, w)
+    x1 = np.clip(np.arange(w) + radius + 1, 0, w)
+    s = c[y1][:, x1] - c[y0][:, x1] - c[y1][:, x0] + c[y0][:, x0]
+    n = (y1 - y0)[:, None] * (x1 - x0)[None, :]
+    return s / n
+
+
+def guided_filter(guide: np.ndarray, src: np.ndarray, radius: int, eps: float) -> np.ndarray:
+    """He et al.'s guided filter with a grey guide.
+
+    Parameters
+    ----------
+    guide : (h, w) float, the guidance image I
+    src : (h, w) float, the filtering input p
+    radius : window radius r (windows of (2 r + 1)^2 pixels, shrunk at the borders)
+    eps : regulariser
+
+    Returns
+    -------
+    (h, w) float64 output q = mean(a) I + mean(b) with a = cov(I, p) / (var(I) + eps), b = mean(p) - a mean(I)
+    """
+    guide = np.asarray(guide, np.float64)
+    src = np.asarray(src, np.float64)
+    if guide.shape != src.shape or guide.ndim != 2:
+        raise InputError(f"guided_filter: guide {guide.shape} and input {src.shape} must be the same 2-D shape")
+    mi, mp = box_mean(guide, radius), box_mean(src, radius)
+    cov = box_mean(guide * src, radius) - mi * mp
+    var = box_mean(guide * guide, radius) - mi * mi
+    a = cov / (var + eps)
+    b = mp - a * mi
+    return box_mean(a, radius) * guide + box_mean(b, radius)
+
+
+def masked_guided_filter(guide: np.ndarray, src: np.ndarray, mask: np.ndarray, radius: int, eps: float) -> np.ndarray:
+    """Guided filter of ``src`` where only ``mask`` pixels carry data: every box mean of the per-window linear
+    model is weighted by the mask (normalised convolution). Equal to :func:`guided_filter` for an all-true mask.
+    Output is NaN outside the mask."""
+    guide = np.asarray(guide, np.float64)
+    m = np.asarray(mask, bool)
+    p = np.where(m, np.asarray(src, np.float64), 0.0)
+    wm = m.astype(np.float64)
+    bw = box_mean(wm, radius)
+    safe = np.maximum(bw, 1e-12)
+    mi = box_mean(guide * wm, radius) / safe
+    mp = box_mean(p, radius) / safe
+    cov = box_mean(guide * p, radius) / safe - mi * mp
+    var = box_mean(guide * guide * wm, radius) / safe - mi * mi
+    a = cov / (np.maximum(var, 0.0) + eps)
+    b = mp - a * mi
+    has = bw > 0
+    # average the window models over the windows that hold data
+    ma = box_mean(np.where(has, a, 0.0), radius)
+    mb = box_mean(np.where(has, b, 0.0), radius)
+    cnt = np.maximum(box_mean(has.astype(np.float64), radius), 1e-12)
+    q = (ma / cnt) * guide + mb / cnt
+    return np.where(m, q, np.nan)
+
+
+def nearest_views(cameras: list[Camera], count: int) -> list[list[int]]:
+    """For each view, the ``count`` other views with the most similar viewing direction."""
+    axes = np.array([c.R[2] for c in cameras])
+    sim = axes @ axes.T
+    np.fill_diagonal(sim, -np.inf)
+    order = np.argsort(-sim, axis=1)
+    return [list(order[i, : min(count, len(cameras) - 1)]) for i in range(len(cameras))]
+
+
+def _backproject(depth: np.ndarray, cam: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """World points of the finite pixels of ``depth`` and their flat pixel indices."""
+    idx = np.flatnonzero(np.isfinite(depth.ravel()))
+    v, u = np.divmod(idx, depth.shape[1])
+    z = depth.ravel()[idx].astype(np.float64)
+    xc = np.stack([u, v, np.ones_like(u)], 1).astype(np.float64) @ np.linalg.inv(cam.K).T * z[:, None]
+    return (xc - cam.t) @ cam.R, idx
+
+
+def consistency_counts(
+    depths: list[np.ndarray], cameras: list[Camera], *, views: list[list[int]], reproj_px: float, rel_depth: float
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Per pixel, how many other views agree with its depth, and how many see through it.
+
+    Parameters
+    ----------
+    depths : list of (h, w) float, z-depth maps, NaN (or inf) where unknown
+    cameras : one per depth map
+    views : for each view, the other views to check against
+    reproj_px, rel_depth : agreement thresholds (forward-backward reprojection error in pixels, relative depth)
+
+    Returns
+    -------
+    support : list of (h, w) int, number of agreeing views (0 where the pixel has no depth)
+    violations : list of (h, w) int, number of views that observed a surface farther than this point along the
+        same ray by more than ``rel_depth`` (free-space violations)
+    """
+    if len(depths) != len(cameras):
+        raise InputError("consistency_counts: one camera per depth map")
+    clean = [np.where(np.isfinite(d), d, np.nan).astype(np.float64) for d in depths]
+    support, violations = [], []
+    for i, cam in enumerate(cameras):
+        h, w = clean[i].shape
+        sup = np.zeros(h * w, np.int32)
+        vio = np.zeros(h * w, np.int32)
+        X, idx = _backproject(clean[i], cam)
+        pix_i = np.stack(np.divmod(idx, w)[::-1], 1).astype(np.float64)  # (u, v)
+        zi = clean[i].ravel()[idx]
+        for j in views[i]:
+            cj = cameras[j]
+            uv, zj = cj.project(X)
+            uj = np.round(uv[:, 0]).astype(np.int64)
+            vj = np.round(uv[:, 1]).astype(np.int64)
+            ok = (zj > 0) & (uj >= 0) & (uj < cj.width) & (vj >= 0) & (vj < cj.height)
+            sel = np.flatnonzero(ok)
+            # free space: view j saw a surface clearly behind X along its ray, at all 4 pixels around X's
+            # projection (the nearest pixel alone would flag slanted surfaces through rounding)
+            u0 = np.clip(np.floor(uv[sel, 0]).astype(np.int64), 0, cj.width - 2)
+            v0 = np.clip(np.floor(uv[sel, 1]).astype(np.int64), 0, cj.height - 2)
+            quad = np.stack([clean[j][v0 + dv, u0 + du] for dv in (0, 1) for du in (0, 1)], 1)
+            has = np.isfinite(quad).any(1)
+            nearest = np.min(np.where(np.isfinite(quad), quad, np.inf), axis=1)
+            behind = has & (nearest > zj[sel] * (1 + rel_depth))
+            vio[idx[sel[behind]]] += 1
+            dj = clean[j][vj[sel], uj[sel]]
+            fin = np.isfinite(dj)
+            sel, dj = sel[fin], dj[fin]
+            # forward-backward: back-project j's depth at that pixel, project into i
+            xcj = np.stack([uj[sel], vj[sel], np.ones(len(sel))], 1) @ np.linalg.inv(cj.K).T * dj[:, None]
+            Xj = (xcj - cj.t) @ cj.R
+            uvi, zback = cam.project(Xj)
+            err = np.linalg.norm(uvi - pix_i[sel], axis=1)
+            agree = (err < reproj_px) & (np.abs(zback - zi[sel]) < rel_depth * zi[sel])
+            sup[idx[sel[agree]]] += 1
+        support.append(sup.reshape(h, w))
+        violations.append(vio.reshape(h, w))
+    return support, violations

@@ -1,0 +1,239 @@
+"""The ``mvs`` method: a view capture in, the plant's point cloud (points.ply) out.
+
+Pipeline (seed 000 section 4): known poses (or pycolmap SfM) -> neighbours -> per-view depth + normal
+(plane sweep + PatchMatch, :mod:`.patchmatch`) -> multi-view geometric consistency and free-space check
+(:mod:`.filtering`) -> guided filter -> fusion and voxel downsampling (:mod:`.fusion`) -> ground removal
+(:mod:`.ground`). The oracle mode replaces the depth estimation with noisy ground-truth depth (:mod:`.oracle`).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from plantbench.cameras import Camera, read_cameras
+from plantbench.errors import InputError
+from plantbench.io.atomic import write_json
+from plantbench.io.ply import write_points
+from plantbench.seeding import rng as seeded_rng
+
+from .filtering import consistency_counts, masked_guided_filter, nearest_views
+from .fusion import fuse_views, voxel_downsample
+from .ground import plant_mask
+from .neighbours import depth_range, scene_centre, scene_scale, select_neighbours
+from .params import MVSParams
+from .patchmatch import DepthMap, estimate_depth, to_gray
+
+__all__ = ["MVS", "load_views", "depth_maps", "filter_depth_maps", "reconstruct_points"]
+
+
+def load_views(capture_dir: str | Path) -> tuple[list[np.ndarray], list[Camera], list[str]]:
+    """Images (RGB uint8), cameras and image names of a capture's ``views/``.
+
+    Raises InputError on a missing cameras.json, fewer than 2 views, an unreadable or missing image, or an image
+    whose size differs from its camera's.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    views = Path(capture_dir) / "views"
+    cam_path = views / "cameras.json"
+    if not cam_path.is_file():
+        raise InputError("no views/cameras.json: not a view capture", path=cam_path)
+    cameras, names = read_cameras(cam_path)
+    if len(cameras) < 2:
+        raise InputError(f"multi-view stereo needs at least 2 views, the capture has {len(cameras)}", path=cam_path)
+    images = []
+    for name, cam in zip(names, cameras, strict=True):
+        path = views / "images" / name
+        try:
+            with Image.open(path) as im:
+                img = np.asarray(im.convert("RGB"))
+        except (FileNotFoundError, IsADirectoryError):
+            raise InputError("image listed in cameras.json is missing", path=path) from None
+        except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+            raise InputError(f"unreadable image ({exc})", path=path) from None
+        if img.shape[:2] != (cam.height, cam.width):
+            raise InputError(f"image is {img.shape[1]}x{img.shape[0]}, its camera says {cam.width}x{cam.height}",
+                             path=path)
+        images.append(img)
+    return images, cameras, names
+
+
+def depth_maps(
+    images: list[np.ndarray], cameras: list[Camera], params: MVSParams | None = None, *, seed: int,
+    neighbours: list[list[int]] | None = None,
+) -> tuple[list[DepthMap], list[list[int]], list[float]]:
+    """Raw per-view depth and normal maps (before the multi-view filter).
+
+    Returns
+    -------
+    maps : one DepthMap per view
+    neighbours : the source views used for each view
+    seconds : time per view
+    """
+    p = params or MVSParams()
+    nb = neighbours if neighbours is not None else select_neighbours(cameras, p.neighbours, p.depth_params.depth_margin)
+    centre = scene_centre(cameras)
+    maps, secs = [], []
+    for i, cam in enumerate(cameras):
+        t0 = time.perf_counter()
+        rng_i = seeded_rng(seed, "mvs", "patchmatch", i)
+        rng_range = depth_range(cam, centre, p.depth_params.depth_margin)
+        maps.append(estimate_depth(images[i], [images[j] for j in nb[i]], cam, [cameras[j] for j in nb[i]],
+                                   rng_range, p.depth_params, rng=rng_i))
+        secs.append(time.perf_counter() - t0)
+    return maps, nb, secs
+
+
+def filter_depth_maps(
+    maps: list[DepthMap], images: list[np.ndarray], cameras: list[Camera], params: MVSParams | None = None,
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Multi-view consistency (>= ``min_consistent`` agreeing views, at most ``max_violations`` free-space
+    violations), then the masked guided filter (a change larger than ``rel_depth`` is not applied: the filter must
+    not move a depth across a discontinuity).
+
+    Returns
+    -------
+    depths : list of (h, w) float32, NaN where rejected
+    keep : list of (h, w) bool
+    """
+    p = params or MVSParams()
+    f = p.filter
+    raw = [m.depth for m in maps]
+    support, violations = consistency_counts(
+        raw, cameras, views=nearest_views(cameras, f.consistency_views), reproj_px=f.reproj_px, rel_depth=f.rel_depth
+    )
+    depths, keeps = [], []
+    for d, sup, vio, img in zip(raw, support, violations, images, strict=True):
+        keep = np.isfinite(d) & (sup >= f.min_consistent) & (vio <= p.fusion.max_violations)
+        out = np.where(keep, d, np.nan).astype(np.float32)
+        if f.guided and keep.any():
+            g = masked_guided_filter(to_gray(img), out, keep, f.guided_radius, f.guided_eps)
+            ok = keep & np.isfinite(g) & (np.abs(g - out) < f.rel_depth * out)
+            out = np.where(ok, g, out).astype(np.float32)
+        depths.append(out)
+        keeps.append(keep)
+    return depths, keeps
+
+
+def _fields(normals: np.ndarray, colours: np.ndarray) -> dict[str, np.ndarray]:
+    n = normals.astype(np.float32)
+    c = colours.astype(np.uint8)
+    return {"nx": n[:, 0], "ny": n[:, 1], "nz": n[:, 2], "red": c[:, 0], "green": c[:, 1], "blue": c[:, 2]}
+
+
+def reconstruct_points(capture_dir: str | Path, out_dir: str | Path, params: MVSParams, *, seed: int) -> dict:
+    """Run the whole stage; writes ``out_dir/points.ply`` and ``out_dir/mvs.json`` and returns the stats."""
+    t_all = time.perf_counter()
+    out = Path(out_dir)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    images, cameras, names = load_views(capture_dir)
+    timings["load"] = time.perf_counter() - t0
+    stats: dict = {"views": len(cameras), "poses": params.poses, "depth": params.depth}
+    used = list(range(len(cameras)))
+    if params.poses == "sfm":
+        from .sfm import run_sfm
+
+        t0 = time.perf_counter()
+        res = run_sfm(Path(capture_dir) / "views" / "images", names, intrinsics=params.intrinsics,
+                      reference=cameras, seed=seed)
+        timings["sfm"] = time.perf_counter() - t0
+        stats["sfm"] = {
+            "intrinsics": params.intrinsics, "registered": len(res.registered),
+            "unregistered": [names[i] for i in res.unregistered], "models": res.models,
+            "sparse_points": res.points, "reprojection_error_px": res.reprojection_error,
+            "sim3_scale": res.sim3[0], "centre_rmse": res.centre_rmse, "timings": res.timings,
+            "focal_estimated": [float(res.cameras[i].K[0, 0]) for i in res.registered[:1]],
+        }
+        used = res.registered
+        cameras = [res.cameras[i] for i in used]
+        images = [images[i] for i in used]
+    stats["views_used"] = len(used)
+    scale = scene_scale(cameras)
+    if params.depth == "oracle":
+        from .oracle import oracle_depths
+
+        t0 = time.perf_counter()
+        depths, normals, keep, sigma = oracle_depths(capture_dir, [names[i] for i in used], cameras, params.noise,
+                                                     seeded_rng(seed, "mvs", "oracle"))
+        timings["depth"] = time.perf_counter() - t0
+        stats["oracle"] = {"noise": params.noise, "sigma_m": sigma}
+        neighbours = None
+    else:
+        t0 = time.perf_counter()
+        maps, neighbours, secs = depth_maps(images, cameras, params, seed=seed)
+        timings["depth"] = time.perf_counter() - t0
+        timings["depth_per_view_median"] = float(np.median(secs))
+        t0 = time.perf_counter()
+        depths, keep = filter_depth_maps(maps, images, cameras, params)
+        normals = [m.normal for m in maps]
+        timings["filter"] = time.perf_counter() - t0
+        stats["pixels_matched"] = int(sum(np.isfinite(m.depth).sum() for m in maps))
+        stats["pixels_kept"] = int(sum(k.sum() for k in keep))
+        if params.write_depth:
+            ddir = out / "depth"
+            ddir.mkdir(parents=True, exist_ok=True)
+            for i, (m, d) in enumerate(zip(maps, depths, strict=True)):
+                np.savez_compressed(ddir / f"{Path(names[used[i]]).stem}.npz", depth=d, raw_depth=m.depth,
+                                    normal=m.normal, cost=m.cost)
+    t0 = time.perf_counter()
+    pts, nrm, col, _ = fuse_views(depths, normals, images, cameras, keep)
+    stats["points_fused"] = len(pts)
+    pts, nrm, col, voxel = voxel_downsample(pts, params.fusion.points, normals=nrm, colours=col)
+    stats["points_downsampled"] = len(pts)
+    stats["voxel"] = voxel
+    timings["fusion"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if params.depth != "oracle" and params.ground.enabled and len(pts):
+        radius = 3.0 * voxel if voxel > 0 else 0.01 * scale
+        mask, plane = plant_mask(pts, col, scale=scale, params=params.ground, rng=seeded_rng(seed, "mvs", "ground"),
+                                 component_radius=radius)
+        stats["ground_plane"] = None if plane is None else {"normal": plane.normal.tolist(), "offset": plane.offset}
+        pts, nrm, col = pts[mask], nrm[mask], col[mask]
+    timings["ground"] = time.perf_counter() - t0
+    stats["points"] = len(pts)
+    if len(pts) == 0:
+        raise InputError("the multi-view stage produced no points (views without texture or overlap?)",
+                         path=Path(capture_dir) / "views")
+    out.mkdir(parents=True, exist_ok=True)
+    write_points(out / "points.ply", pts, _fields(nrm, col))
+    timings["total"] = time.perf_counter() - t_all
+    stats["timings"] = timings
+    stats["neighbours"] = neighbours
+    write_json(out / "mvs.json", _jsonable(stats))
+    return stats
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.floating):
+        return float(obj)
+    return obj
+
+
+class MVS:
+    """Multi-view point cloud (seed 000 section 4): the first stage of guo, livny and xu on image captures.
+
+    Options (a suite's ``[method_options.mvs]``): ``poses`` ('known' | 'sfm'), ``intrinsics`` ('known' |
+    'unknown', SfM only), ``depth`` ('estimated' | 'oracle'), ``noise`` (oracle: sigma as a fraction of plant
+    height), ``points`` (target cloud size), ``write_depth`` and any nested parameter as ``GROUP__FIELD`` (see
+    :class:`reference_impl.mvs.params.MVSParams`). Writes ``points.ply`` (x y z nx ny nz red green blue, plant only)
+    and ``mvs.json`` (stats).
+    """
+
+    name = "mvs"
+    inputs = "views"
+
+    def reconstruct(
+        self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None, **options
+    ) -> None:
+        params = MVSParams.from_options(options)
+        reconstruct_points(capture_dir, out_dir, params, seed=seed)

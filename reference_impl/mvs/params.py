@@ -1,0 +1,175 @@
+"""Parameters of the multi-view point-cloud stage, one frozen dataclass per step.
+
+Every field that changes the output is here, with its default; :class:`MVSParams` collects them and
+:meth:`MVSParams.from_options` maps a suite's ``[method_options.mvs]`` keywords onto them (unknown keywords are an
+:class:`~plantbench.errors.InputError`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from plantbench.errors import InputError
+
+__all__ = ["NeighbourParams", "DepthParams", "FilterParams", "FusionParams", "GroundParams", "MVSParams"]
+
+
+@dataclass(frozen=True)
+class NeighbourParams:
+    """Choice of source views for each reference view."""
+
+    count: int = 4
+    """Number of source (neighbour) views per reference view."""
+    min_angle_deg: float = 5.0
+    """Smallest triangulation angle (between the rays to the scene centre) of a usable neighbour; below it depth is
+    ill-conditioned."""
+    max_angle_deg: float = 50.0
+    """Largest triangulation angle of a usable neighbour; above it the appearance changes too much to match."""
+    best_angle_deg: float = 15.0
+    """Preferred triangulation angle: candidates are ranked by |angle - best| weighted by their frustum overlap."""
+    min_overlap: float = 0.2
+    """Smallest fraction of the reference frustum (sampled over its depth range) that a neighbour must see."""
+
+
+@dataclass(frozen=True)
+class DepthParams:
+    """Per-view depth and normal estimation: fronto-parallel plane sweep, then slanted-plane PatchMatch."""
+
+    hypotheses: int = 128
+    """Number of depth planes of the sweep, uniform in inverse depth over the view's depth range."""
+    sweep_window: int = 5
+    """Side of the square ZNCC window of the sweep, pixels (odd)."""
+    top_k: int = 2
+    """Matching cost = mean of the ``top_k`` best source costs (robust to occlusion in the other sources)."""
+    pm_iterations: int = 2
+    """PatchMatch iterations (each a red and a black half-sweep over the image)."""
+    pm_radius: int = 2
+    """PatchMatch window half-size in samples; the window spans (2 r + 1)^2 samples ``pm_step`` pixels apart."""
+    pm_step: int = 1
+    """Pixel spacing of the PatchMatch window samples (2 with r = 1 gives the sparse 3 x 3 sampling of a 5 x 5
+    footprint, ~2.5x faster but measurably less accurate on fine texture)."""
+    bilateral_sigma_color: float = 0.1
+    """Colour sigma of the bilateral support weights (grey levels in [0, 1])."""
+    bilateral_sigma_space: float = 3.0
+    """Spatial sigma of the bilateral support weights, pixels."""
+    max_cost: float = 0.6
+    """A pixel keeps its depth when its final cost (1 - weighted ZNCC, mean of the ``top_k`` best sources) is
+    below this value."""
+    min_texture: float = 0.01
+    """Pixels whose reference window has a grey-level standard deviation below this are not matched."""
+    depth_margin: float = 1.25
+    """Scene radius used for the depth range = margin x (distance to the scene centre) x tan(half field of view)."""
+
+
+@dataclass(frozen=True)
+class FilterParams:
+    """Geometric coherence across views (seed 000 Eq. 3-4 in spirit) and the edge-aware guided filter."""
+
+    min_consistent: int = 2
+    """A depth is kept when at least this many other views agree with it."""
+    reproj_px: float = 1.0
+    """Agreement: the forward-backward reprojection error is below this many pixels ..."""
+    rel_depth: float = 0.01
+    """... and the relative depth difference is below this fraction."""
+    consistency_views: int = 8
+    """Number of views (nearest by viewing direction) against which each reference is checked."""
+    guided_radius: int = 2
+    """Guided-filter window radius, pixels (He et al. 2010)."""
+    guided_eps: float = 1e-4
+    """Guided-filter regulariser eps (on grey levels in [0, 1])."""
+    guided: bool = True
+    """Apply the guided filter to the kept depths."""
+
+
+@dataclass(frozen=True)
+class FusionParams:
+    """Fusion of the per-view depth maps into one cloud."""
+
+    points: int = 200_000
+    """Target number of points after voxel downsampling (the result has at most this many)."""
+    max_violations: int = 1
+    """A point is dropped when more than this many views see through it (free-space violations)."""
+    rel_depth: float = 0.01
+    """Relative depth tolerance of the free-space test."""
+
+
+@dataclass(frozen=True)
+class GroundParams:
+    """Separation of the plant from the ground."""
+
+    enabled: bool = True
+    """Remove the ground; when False the whole fused cloud is written."""
+    ransac_iterations: int = 500
+    """RANSAC iterations of the plane fit."""
+    max_tilt_deg: float = 30.0
+    """The ground plane's normal lies within this angle of the up axis (world +Z)."""
+    inlier_fraction: float = 0.005
+    """Plane inlier distance as a fraction of the cloud's scale (distance from the cameras to the scene centre)."""
+    height_fraction: float = 0.01
+    """Points less than this fraction of the scene scale above the plane are ground."""
+    color_band: float = 3.0
+    """Points up to ``color_band`` x the height threshold above the plane are removed when their colour matches the
+    ground's (Mahalanobis distance below ``color_mahalanobis``)."""
+    color_mahalanobis: float = 2.0
+    """Mahalanobis radius (RGB) of the ground colour model."""
+    cluster_fraction: float = 0.01
+    """After removing the ground, connected components (radius graph) smaller than this fraction of the largest
+    are dropped as floaters."""
+
+
+@dataclass(frozen=True)
+class MVSParams:
+    """Everything the ``mvs`` method does, with defaults."""
+
+    poses: str = "known"
+    """'known' (views/cameras.json) or 'sfm' (pycolmap SIFT + incremental mapping, aligned by Sim(3) afterwards)."""
+    intrinsics: str = "known"
+    """SfM mode only: 'known' (fixed from cameras.json) or 'unknown' (estimated by bundle adjustment)."""
+    depth: str = "estimated"
+    """'estimated' (plane sweep + PatchMatch) or 'oracle' (ground-truth depth plus noise; reads views/depth,
+    views/instance and plant/plant.json, being an oracle)."""
+    noise: float = 0.0
+    """Oracle mode: Gaussian z-depth noise sigma as a fraction of the plant height (plant.json)."""
+    write_depth: bool = False
+    """Also write the per-view depth/normal maps as out_dir/depth/NNNN.npz."""
+    neighbours: NeighbourParams = field(default_factory=NeighbourParams)
+    depth_params: DepthParams = field(default_factory=DepthParams)
+    filter: FilterParams = field(default_factory=FilterParams)
+    fusion: FusionParams = field(default_factory=FusionParams)
+    ground: GroundParams = field(default_factory=GroundParams)
+
+    def __post_init__(self) -> None:
+        if self.poses not in ("known", "sfm"):
+            raise InputError(f"mvs: poses must be 'known' or 'sfm', got {self.poses!r}")
+        if self.intrinsics not in ("known", "unknown"):
+            raise InputError(f"mvs: intrinsics must be 'known' or 'unknown', got {self.intrinsics!r}")
+        if self.depth not in ("estimated", "oracle"):
+            raise InputError(f"mvs: depth must be 'estimated' or 'oracle', got {self.depth!r}")
+        if not self.noise >= 0:
+            raise InputError(f"mvs: noise must be >= 0, got {self.noise!r}")
+
+    @classmethod
+    def from_options(cls, options: dict) -> MVSParams:
+        """Build from flat keywords: top-level fields by name (``points`` is ``fusion.points``), and any nested
+        field as ``GROUP__FIELD`` (e.g. ``depth_params__hypotheses=64``, ``ground__enabled=False``)."""
+        top, nested = {}, {}
+        groups = {f.name: f for f in dataclasses.fields(cls) if dataclasses.is_dataclass(f.default_factory)}
+        for key, value in options.items():
+            if key == "points":
+                nested.setdefault("fusion", {})["points"] = int(value)
+            elif "__" in key:
+                group, name = key.split("__", 1)
+                if group not in groups:
+                    raise InputError(f"mvs: unknown option group {group!r} (known: {', '.join(groups)})")
+                names = {f.name for f in dataclasses.fields(groups[group].default_factory)}
+                if name not in names:
+                    raise InputError(f"mvs: unknown option {key!r} (known in {group}: {', '.join(sorted(names))})")
+                nested.setdefault(group, {})[name] = value
+            elif key in {f.name for f in dataclasses.fields(cls)} and key not in groups:
+                top[key] = value
+            else:
+                raise InputError(f"mvs: unknown option {key!r}")
+        for group, values in nested.items():
+            top[group] = groups[group].default_factory(**values)
+        return cls(**top)

@@ -1,0 +1,191 @@
+"""Structure from motion with pycolmap on the CPU (poses withheld), and the Sim(3) alignment used for evaluation.
+
+pycolmap 4.2.1: SIFT extraction and exhaustive matching with ``Device.cpu``, then incremental mapping; the largest
+model is kept. Intrinsics are either fixed to the capture's (``known``: one PINHOLE camera whose parameters are
+not refined) or estimated (``unknown``: one SIMPLE_RADIAL camera initialised by COLMAP's focal-length prior and
+refined by bundle adjustment; the radial term is then ignored for the dense stage, the images being distortion free).
+
+The reconstruction lives in an arbitrary similarity frame. For evaluation only, it is mapped onto the ground-truth
+frame by the Umeyama Sim(3) that best aligns the registered camera centres with those of ``views/cameras.json``;
+the dense stage then runs with the aligned poses, so the cloud is scored in the world frame. Views that fail to
+register are reported (names and count), never silently dropped.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from plantbench.cameras import Camera
+from plantbench.errors import InputError, PlantbenchError
+
+__all__ = ["SfMResult", "run_sfm", "umeyama", "SfMFailed"]
+
+
+class SfMFailed(PlantbenchError):
+    """Structure from motion registered too few views to go on."""
+
+
+@dataclass
+class SfMResult:
+    """Registered views and their cameras (already aligned to the reference frame when one was given).
+
+    cameras : dict view index -> Camera (OpenCV convention)
+    registered, unregistered : view indices
+    sim3 : (scale, R (3, 3), t (3,)) mapping SfM coordinates into the reference frame (x' = s R x + t)
+    centre_rmse : RMS camera-centre error after alignment (reference frame units), NaN without a reference
+    points : number of sparse 3-D points
+    reprojection_error : mean reprojection error, pixels
+    """
+
+    cameras: dict[int, Camera]
+    registered: list[int]
+    unregistered: list[int]
+    sim3: tuple[float, np.ndarray, np.ndarray]
+    centre_rmse: float
+    points: int
+    reprojection_error: float
+    models: int = 1
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Least-squares similarity (Umeyama 1991) with dst ~ s R src + t.
+
+    Parameters
+    ----------
+    src, dst : (n, 3) float, n >= 3 corresponding points, not collinear
+
+    Returns
+    -------
+    s : float, R : (3, 3) rotation, t : (3,)
+    """
+    src = np.asarray(src, float)
+    dst = np.asarray(dst, float)
+    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) < 3:
+        raise InputError(f"umeyama needs two (n >= 3, 3) arrays, got {src.shape} and {dst.shape}")
+    ms, md = src.mean(0), dst.mean(0)
+    a, b = src - ms, dst - md
+    cov = b.T @ a / len(src)
+    u, d, vt = np.linalg.svd(cov)
+    s_mat = np.eye(3)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        s_mat[2, 2] = -1
+    r = u @ s_mat @ vt
+    var = (a**2).sum() / len(src)
+    if var <= 0:
+        raise InputError("umeyama: the source points coincide")
+    s = float(np.trace(np.diag(d) @ s_mat) / var)
+    return s, r, md - s * r @ ms
+
+
+def run_sfm(
+    image_dir: Path, names: list[str], *, intrinsics: str, reference: list[Camera] | None, seed: int,
+    work_dir: Path | None = None, threads: int = 2,
+) -> SfMResult:
+    """SIFT + exhaustive matching + incremental mapping on the CPU.
+
+    Parameters
+    ----------
+    image_dir : folder of the images
+    names : image file names, in view order
+    intrinsics : 'known' (fixed to ``reference``'s K, which must then be given) or 'unknown'
+    reference : the capture's cameras: the Sim(3) target (evaluation frame) and the known intrinsics
+    seed : random seed of the mapper
+    work_dir : where to keep the database and model (a temporary folder when None)
+    """
+    import importlib
+
+    importlib.import_module("PIL.Image")  # PIL before pycolmap: zlib clash (notes/algorithms.md 6.1)
+    pycolmap = importlib.import_module("pycolmap")
+
+    if intrinsics not in ("known", "unknown"):
+        raise InputError(f"intrinsics must be 'known' or 'unknown', got {intrinsics!r}")
+    if intrinsics == "known" and not reference:
+        raise InputError("intrinsics='known' needs the reference cameras")
+    timings: dict[str, float] = {}
+    with tempfile.TemporaryDirectory(prefix="sfm.") as tmp:
+        work = Path(work_dir) if work_dir is not None else Path(tmp)
+        work.mkdir(parents=True, exist_ok=True)
+        db = work / "database.db"
+        if db.exists():
+            db.unlink()
+        reader = pycolmap.ImageReaderOptions()
+        if intrinsics == "known":
+            k = reference[0].K
+            if any(not np.allclose(c.K, k) for c in reference):
+                raise InputError("intrinsics='known' in SfM mode supports one shared camera (all K equal)")
+            reader.camera_model = "PINHOLE"
+            # COLMAP puts pixel centres at +0.5
+            reader.camera_params = f"{k[0, 0]},{k[1, 1]},{k[0, 2] + 0.5},{k[1, 2] + 0.5}"
+        else:
+            reader.camera_model = "SIMPLE_RADIAL"
+        extraction = pycolmap.FeatureExtractionOptions()
+        extraction.num_threads = threads
+        t0 = time.perf_counter()
+        pycolmap.extract_features(
+            db, image_dir, image_names=list(names), camera_mode=pycolmap.CameraMode.SINGLE,
+            reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
+        )
+        timings["extract"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        pycolmap.match_exhaustive(db, device=pycolmap.Device.cpu)
+        timings["match"] = time.perf_counter() - t0
+        opts = pycolmap.IncrementalPipelineOptions()
+        opts.num_threads = threads
+        opts.random_seed = int(seed) % (2**31)
+        if intrinsics == "known":
+            opts.ba_refine_focal_length = False
+            opts.ba_refine_principal_point = False
+            opts.ba_refine_extra_params = False
+        t0 = time.perf_counter()
+        models = pycolmap.incremental_mapping(db, image_dir, work / "sparse", options=opts)
+        timings["map"] = time.perf_counter() - t0
+        if not models:
+            raise SfMFailed(f"structure from motion registered no model from {len(names)} views")
+        rec = max(models.values(), key=lambda r: r.num_reg_images())
+        index_of = {n: i for i, n in enumerate(names)}
+        cams: dict[int, Camera] = {}
+        for img in rec.images.values():
+            if not img.has_pose:
+                continue
+            cam = img.camera
+            params = np.asarray(cam.params, float)
+            model = str(cam.model_name) if hasattr(cam, "model_name") else str(cam.model)
+            if "PINHOLE" in model and "SIMPLE" not in model:
+                fx, fy, cx, cy = params[:4]
+            else:  # SIMPLE_PINHOLE / SIMPLE_RADIAL: f, cx, cy[, k]
+                fx = fy = params[0]
+                cx, cy = params[1], params[2]
+            kmat = np.array([[fx, 0, cx - 0.5], [0, fy, cy - 0.5], [0, 0, 1.0]])
+            pose = img.cam_from_world() if callable(img.cam_from_world) else img.cam_from_world
+            mat = np.asarray(pose.matrix())
+            cams[index_of[img.name]] = Camera(kmat, mat[:, :3], mat[:, 3], int(cam.width), int(cam.height))
+        registered = sorted(cams)
+        unregistered = [i for i in range(len(names)) if i not in cams]
+        if len(registered) < 2:
+            raise SfMFailed(f"structure from motion registered {len(registered)} of {len(names)} views")
+        sim3 = (1.0, np.eye(3), np.zeros(3))
+        rmse = float("nan")
+        if reference is not None:
+            if len(registered) < 3:
+                raise SfMFailed("Sim(3) alignment needs at least 3 registered views")
+            src = np.array([cams[i].center for i in registered])
+            dst = np.array([reference[i].center for i in registered])
+            s, r, t = umeyama(src, dst)
+            sim3 = (s, r, t)
+            rmse = float(np.sqrt(np.mean(np.sum((s * src @ r.T + t - dst) ** 2, axis=1))))
+            for i in registered:
+                c = cams[i]
+                # x_cam = R_c x + t_c, x = (x' - t) / s R^T  ->  x_cam = R_c R^T x' + (t_c - R_c R^T t / s) ... scaled
+                r_new = c.R @ r.T
+                t_new = s * c.t - r_new @ t
+                cams[i] = Camera(c.K, r_new, t_new, c.width, c.height)
+        return SfMResult(
+            cams, registered, unregistered, sim3, rmse, int(rec.num_points3D()),
+            float(rec.compute_mean_reprojection_error()), len(models), timings,
+        )

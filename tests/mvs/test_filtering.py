@@ -1,0 +1,95 @@
+"""Guided filter against a naive per-window implementation; the multi-view consistency test on an analytic plane."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from plantbench.cameras import look_at
+from reference_impl.mvs.filtering import box_mean, consistency_counts, guided_filter, masked_guided_filter
+
+
+def naive_guided(g_img, p, r, eps):
+    """He et al. 2010 Algorithm 1, window by window with explicit loops."""
+    h, w = g_img.shape
+    a = np.zeros((h, w))
+    b = np.zeros((h, w))
+    for y in range(h):
+        for x in range(w):
+            win = (slice(max(y - r, 0), y + r + 1), slice(max(x - r, 0), x + r + 1))
+            Iw, pw = g_img[win], p[win]
+            mu, pm = Iw.mean(), pw.mean()
+            a[y, x] = ((Iw * pw).mean() - mu * pm) / (Iw.var() + eps)
+            b[y, x] = pm - a[y, x] * mu
+    q = np.zeros((h, w))
+    for y in range(h):
+        for x in range(w):
+            win = (slice(max(y - r, 0), y + r + 1), slice(max(x - r, 0), x + r + 1))
+            q[y, x] = a[win].mean() * g_img[y, x] + b[win].mean()
+    return q
+
+
+def test_box_mean_naive(rng):
+    x = rng.random((9, 7))
+    r = 2
+    want = np.array([[x[max(i - r, 0): i + r + 1, max(j - r, 0): j + r + 1].mean() for j in range(7)] for i in range(9)])
+    assert np.allclose(box_mean(x, r), want)
+
+
+def test_guided_filter_matches_naive(rng):
+    g_img = rng.random((14, 11))
+    p = rng.random((14, 11))
+    for r, eps in ((1, 1e-3), (2, 0.1)):
+        assert np.allclose(guided_filter(g_img, p, r, eps), naive_guided(g_img, p, r, eps), atol=1e-10)
+
+
+def test_guided_filter_preserves_edges_of_the_guide():
+    g_img = np.zeros((20, 20))
+    g_img[:, 10:] = 1.0
+    p = g_img * 2.0 + 1.0  # depth step aligned with the guide's edge
+    q = guided_filter(g_img, p, 3, 1e-4)
+    assert np.allclose(q, p, atol=1e-3)
+
+
+def test_masked_equals_plain_for_full_mask(rng):
+    g_img, p = rng.random((12, 12)), rng.random((12, 12))
+    assert np.allclose(masked_guided_filter(g_img, p, np.ones((12, 12), bool), 2, 1e-2), guided_filter(g_img, p, 2, 1e-2))
+
+
+def test_masked_filter_ignores_masked_values(rng):
+    g_img = rng.random((16, 16))
+    p = np.full((16, 16), 3.0)
+    mask = rng.random((16, 16)) > 0.3
+    p_bad = np.where(mask, p, 1e6)  # garbage under the mask must not leak
+    q = masked_guided_filter(g_img, p_bad, mask, 2, 1e-3)
+    assert np.allclose(q[mask], 3.0) and np.all(np.isnan(q[~mask]))
+
+
+def _plane_depth(cam, height=0.0):
+    """Exact z-depth of the plane z = height, NaN where not hit."""
+    o, d = cam.pixel_rays()
+    t = (height - o[2]) / d[:, 2]
+    z = t * (d @ cam.R[2])
+    return np.where(t > 0, z, np.nan).reshape(cam.height, cam.width)
+
+
+def test_consistency_removes_outliers_keeps_inliers(rng):
+    cams = [look_at((3 * np.cos(a), 3 * np.sin(a), 2.5), (0, 0, 0), fov_x_deg=50, width=64, height=64)
+            for a in np.radians([0, 20, 40, -20, -40])]
+    depths = [_plane_depth(c) for c in cams]
+    noisy = depths[0].copy()
+    outlier = rng.random(noisy.shape) < 0.1
+    noisy[outlier] *= rng.choice([0.8, 1.2], outlier.sum())  # 20 % off: far outside the 1 % tolerance
+    depths[0] = noisy
+    support, violations = consistency_counts(depths, cams, views=[[1, 2, 3, 4]] + [[0]] * 4, reproj_px=1.0,
+                                             rel_depth=0.01)
+    inl = ~outlier & np.isfinite(noisy)
+    # an inlier is seen by >= 2 of the 4 other views near the image centre; all outliers fail
+    assert np.all(support[0][outlier] == 0)
+    centre = np.zeros_like(inl)
+    centre[16:48, 16:48] = True
+    assert np.mean(support[0][inl & centre] >= 2) > 0.99
+    # points pulled towards the camera (x0.8) lie in free space of the other views
+    closer = outlier & (noisy < depths[1].max() * 10) & (rng.random(noisy.shape) >= 0)  # all outliers
+    near_out = closer & (noisy < _plane_depth(cams[0]) * 0.9) & centre
+    assert np.mean(violations[0][near_out] >= 1) > 0.95
+    assert np.mean(violations[0][inl & centre] == 0) > 0.99
