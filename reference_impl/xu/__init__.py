@@ -1,1 +1,37 @@
-"""xu (not implemented yet)."""
+"""xu: the Xu, Gossett, Chen 2007-style baseline (seed 002), a registered ``points`` method.
+
+The algorithm: :mod:`reference_impl.xu.skeleton` (section 4.1-4.2), :mod:`reference_impl.xu.synthesis` (4.3-4.4)
+and :mod:`reference_impl.xu.pipeline` (the whole chain, radii and angles of section 5.2, leaves of section 6; the
+parameters with their sources in :class:`~reference_impl.xu.pipeline.XuParams`). Suite options
+(``[method_options.xu]``) override XuParams fields by name.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from plantbench.io.plantio import write_reconstruction
+from plantbench.seeding import rng as seeded_rng
+from reference_impl.common.inputs import load_points
+from reference_impl.common.options import params_from_options
+from reference_impl.xu.pipeline import XuParams, XuResult, reconstruct_xu
+
+__all__ = ["Xu", "XuParams", "reconstruct_xu"]
+
+
+class Xu:
+    name = "xu"
+    inputs = "points"
+
+    def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None,
+                    **options) -> XuResult:
+        """Read ``capture_dir/points.ply``, reconstruct, write skeleton.ply, mesh.ply and leaves.json.
+
+        ``species`` is ignored: the paper's parameters are scaled by the measured plant height instead of looked up
+        per species. Returns the in-memory result.
+        """
+        params = params_from_options(XuParams, options)
+        points = load_points(capture_dir)
+        result = reconstruct_xu(points, seeded_rng(seed, "xu"), params)
+        write_reconstruction(out_dir, result.skeleton, mesh=result.mesh, leaves=result.leaves)
+        return result

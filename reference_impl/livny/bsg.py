@@ -1,0 +1,322 @@
+"""The Livny et al. 2010 pipeline (DESIGN.md section 6, notes/algorithms.md section 1) as pure functions.
+
+Steps and where each parameter comes from ([L] Livny 2010 as summarised in the notes, [G] the Groot
+re-implementation, [A] AdTree, [S] our choice; every length is scaled by the plant's size):
+
+1. ground removal (reference_impl.common.ground) [S]; voxel downsampling at 0.5 % of the bounding-box diagonal [S,
+   notes 1.2];
+2. symmetrised 10-NN graph without edges longer than 3 x the median 1-NN spacing, components bridged by their
+   shortest edges [S, notes 1.2];
+3. roots: the lowest vertex of each central cluster of the bottom 2 % of the height, per separate plant [A, L:
+   several roots allowed; S: the central and per-plant rules, reference_impl.common.roots.find_roots];
+4. shortest-path tree by multi-source Dijkstra [L];
+5. five outer iterations [G] of: vertex weights = supported subtree length [L, G, A]; the orientation field
+   minimising sum w_pc^2 |o_p - o_c|^2 + w_c^2 |o_c - e_c|^2 (Groot's energy) solved as one sparse linear least
+   squares and normalised [S, notes: the cheap equivalent of the sphere-constrained solve]; re-embedding of the
+   positions by sparse least squares, edges aligned with the field plus a data term [G]; resampling by merging the
+   vertices sharing a one-voxel cell and rebuilding the shortest-path tree [S, notes 1.1 step 7];
+6. simplification until stable: subtree-ratio pruning 0.02 [A: 0.019] plus twigs under 3 voxels [S], sibling merging
+   below 25 deg with length ratio in [1/2, 2] [A], removal of degree-2 vertices within the local radius of their
+   neighbours' line [A];
+7. pipe-model radii r = r_root (w / w_root)^(1/2) [L, standard], r_root from a trunk cylinder fit [A];
+8. leaves in the lobes around terminal subtrees: crown points the branches do not explain, one Bezier leaf per
+   leaf-sized cell, hanging from the nearest node of a terminal subtree (one supporting at most 5 % of the plant's
+   branch length) [L: lobes; S: the cell rule and the 5 %].
+
+Two choices differ from Groot and are ours [S]: the field term of the re-embedding keeps each edge's length along
+the field (((p_c - p_p) . o) o) instead of its full length, so zig-zag shortest paths over a branch surface are
+straightened without being stretched; and the data term anchors each vertex to the centroid of the cloud within
+1.5 local radii of it (its axial offset removed), which pulls skeletons from the scanned surface to the branch axis.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import spsolve
+from scipy.spatial import cKDTree
+
+from plantbench.errors import InputError
+from plantbench.plant import Leaf, Skeleton, TriMesh
+from reference_impl.common.geometry import bezier_leaves, branch_mesh, leaf_frames
+from reference_impl.common.graph import (
+    bridge_components,
+    knn_graph,
+    median_spacing,
+    shortest_path_tree,
+    subtree_lengths,
+    voxel_downsample,
+)
+from reference_impl.common.ground import GroundParams, remove_ground
+from reference_impl.common.inputs import MIN_POINTS, check_points
+from reference_impl.common.leaves import foliage_cells, sample_edges, skeleton_distance
+from reference_impl.common.radii import pipe_model_radii
+from reference_impl.common.roots import anchor_roots, find_roots, stem_radius
+from reference_impl.common.skeleton_ops import (
+    branch_orders,
+    merge_siblings,
+    prune_by_ratio,
+    prune_short_tips,
+    remove_degree2,
+    remove_nodes,
+    spatial_merge,
+    unit,
+)
+
+__all__ = ["LivnyParams", "LivnyResult", "reconstruct_livny", "orientation_field", "reembed"]
+
+
+@dataclass(frozen=True)
+class LivnyParams:
+    """Parameters of the Livny-style baseline (source in brackets, see the module docstring)."""
+
+    voxel_fraction: float = 0.005
+    """Voxel edge as a fraction of the plant's bounding-box diagonal [S, notes 1.2]."""
+    k: int = 10
+    """Neighbours per vertex in the kNN graph [S, notes 1.2]."""
+    max_edge_factor: float = 3.0
+    """Drop kNN edges longer than this times the median 1-NN spacing, then bridge components [S, notes 1.2]."""
+    root_slab_fraction: float = 0.02
+    """Roots are searched in the lowest 2 % of the height [A]."""
+    plant_gap_fraction: float = 0.05
+    """Clouds separated by more than about this fraction of the height are separate plants, each rooted on its own
+    (several blobs in one capture); never below twice the longest kNN edge [S]."""
+    outer_iterations: int = 5
+    """Weights / orientation / re-embedding / resampling passes [G: max_iterations = 5]."""
+    data_weight: float = 0.5
+    """Weight of the data (anchor) term against the field term in the re-embedding [S]."""
+    anchor_radius_factor: float = 1.5
+    """Anchor = centroid of the cloud within this many local (pipe-model) radii of a vertex [S]."""
+    merge_factor: float = 1.0
+    """Resampling between passes merges vertices in cells of this many voxels [S, notes 1.2: delta = 1 voxel]."""
+    prune_ratio: float = 0.02
+    """Keep a child subtree if (w(child) + |edge|) / w(parent) >= this [A: 0.019; issue: ~0.02]."""
+    min_twig_voxels: float = 3.0
+    """Terminal twigs shorter than this many voxels hanging from a junction are noise: pruned with the ratio rule
+    [S: below the cloud's resolution, the 0.02 ratio alone keeps such stubs near the tips]."""
+    sibling_angle_deg: float = 25.0
+    """Merge siblings whose directions differ by less than this [A: cos > 0.9]."""
+    sibling_length_ratio: float = 2.0
+    """... and whose edge lengths differ by at most this factor [A: ratio in [0.5, 2]]."""
+    radius_exponent: float = 0.5
+    """Pipe model: r proportional to supported length^exponent [L, standard pipe model]."""
+    trunk_fit_fraction: float = 0.05
+    """Trunk cylinder fitted to the cloud over this fraction of the height above the root [S]."""
+    min_radius_fraction: float = 0.0005
+    """Smallest radius, fraction of the plant height (0.5 mm on a 1 m plant) [S]."""
+    leaf_length_fraction: float = 0.025
+    """Leaf blade length, fraction of the plant height [S; AdTree uses 0.05 of the bounding distance]."""
+    lobe_fraction: float = 0.05
+    """Terminal subtrees (lobes) are those supporting at most this fraction of the plant's branch length; leaves
+    hang from their nodes [L: lobes around terminal subtrees; S: the value]."""
+    foliage_margin: float = 2.0
+    """A point is foliage when it lies more than local radius + this many voxels from the skeleton [S]."""
+    simplify_rounds: int = 10
+    """Upper bound on prune / merge / degree-2 rounds (they stop earlier when nothing changes) [S]."""
+
+
+@dataclass(frozen=True)
+class LivnyResult:
+    skeleton: Skeleton
+    mesh: TriMesh
+    leaves: list[Leaf]
+    info: dict
+
+
+def orientation_field(positions: np.ndarray, parents: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(n, 3) unit orientation per vertex minimising Groot's energy without the unit constraint, then normalised.
+
+    E(O) = sum_(p,c) wbar_pc^2 |o_p - o_c|^2 + sum_c w_c^2 |o_c - e_c|^2, wbar = (w_p + w_c) / 2, e_c the unit
+    direction parent -> child. weights : (n,) positive (normalised internally). Roots take their children's field.
+    """
+    n = len(parents)
+    c = np.flatnonzero(parents >= 0)
+    p = parents[c]
+    w = weights / weights.max()
+    e = unit(positions[c] - positions[p])
+    a = ((w[p] + w[c]) / 2) ** 2
+    d = np.zeros(n)
+    d[c] = w[c] ** 2
+    rhs = np.zeros((n, 3))
+    rhs[c] = d[c, None] * e
+    lap = sp.coo_matrix((np.concatenate([-a, -a]), (np.concatenate([p, c]), np.concatenate([c, p]))), shape=(n, n))
+    deg = np.zeros(n)
+    np.add.at(deg, p, a)
+    np.add.at(deg, c, a)
+    mat = (lap + sp.diags(deg + d + 1e-12 * (deg + d).max() + 1e-300)).tocsc()
+    o = spsolve(mat, rhs)
+    o = np.asarray(o).reshape(n, 3)
+    bad = np.linalg.norm(o, axis=1) < 1e-12
+    o[bad] = np.array([0.0, 0.0, 1.0])
+    return unit(o)
+
+
+def reembed(positions: np.ndarray, parents: np.ndarray, weights: np.ndarray, field: np.ndarray,
+            anchors: np.ndarray, data_weight: float) -> np.ndarray:
+    """(n, 3) positions minimising sum wbar^2 |(p_c - p_p) - ((p_c - p_p)^0 . o) o|^2 + lambda w^2 |p - anchor|^2.
+
+    o = unit(o_p + o_c) is the field on the edge, ``(p_c - p_p)^0`` the current edge. One sparse SPD solve for the
+    three coordinates.
+    """
+    n = len(parents)
+    c = np.flatnonzero(parents >= 0)
+    p = parents[c]
+    w = weights / weights.max()
+    o = unit(field[p] + field[c])
+    cur = positions[c] - positions[p]
+    target = np.sum(cur * o, 1, keepdims=True) * o
+    a = ((w[p] + w[c]) / 2) ** 2
+    g = data_weight * w**2
+    # normal equations of: sqrt(a) (x_c - x_p - t), sqrt(g) (x - anchor)
+    lap = sp.coo_matrix((np.concatenate([-a, -a]), (np.concatenate([p, c]), np.concatenate([c, p]))), shape=(n, n))
+    deg = np.zeros(n)
+    np.add.at(deg, p, a)
+    np.add.at(deg, c, a)
+    mat = (lap + sp.diags(deg + g)).tocsc()
+    rhs = g[:, None] * anchors
+    np.add.at(rhs, c, a[:, None] * target)
+    np.add.at(rhs, p, -a[:, None] * target)
+    out = np.asarray(spsolve(mat, rhs)).reshape(n, 3)
+    if not np.all(np.isfinite(out)):
+        return positions
+    return out
+
+
+def _anchors(tree: cKDTree, cloud: np.ndarray, mass: np.ndarray, positions: np.ndarray, field: np.ndarray,
+             radius: np.ndarray) -> np.ndarray:
+    """Mass-weighted centroid of the cloud within ``radius`` of each vertex, with its offset along the field removed."""
+    lists = tree.query_ball_point(positions, radius, workers=-1)
+    lens = np.fromiter((len(x) for x in lists), np.int64, len(lists))
+    out = positions.copy()
+    ok = lens > 0
+    if ok.any():
+        flat = np.concatenate([np.asarray(x, np.int64) for x, good in zip(lists, ok) if good])
+        owner = np.repeat(np.flatnonzero(ok), lens[ok])
+        wsum = np.zeros(len(positions))
+        np.add.at(wsum, owner, mass[flat])
+        acc = np.zeros((len(positions), 3))
+        np.add.at(acc, owner, cloud[flat] * mass[flat, None])
+        cen = acc[ok] / wsum[ok, None]
+        off = cen - positions[ok]
+        off -= np.sum(off * field[ok], 1, keepdims=True) * field[ok]
+        out[ok] = positions[ok] + off
+    return out
+
+
+def reconstruct_livny(points: np.ndarray, rng: np.random.Generator, params: LivnyParams = LivnyParams()
+                      ) -> LivnyResult:
+    """Skeleton, branch + leaf mesh and leaves from a cloud (metres, Z up, ground near z = 0).
+
+    points : (n, 3) float. Raises InputError for fewer than MIN_POINTS valid points (after ground removal) or
+    non-finite coordinates.
+    """
+    pts = check_points(points)
+    ground = remove_ground(pts, rng, GroundParams())
+    plant = pts[ground.keep]
+    if len(plant) < MIN_POINTS:
+        raise InputError(f"only {len(plant)} points above the ground; at least {MIN_POINTS} are needed")
+    hgt = ground.height(plant)
+    height = float(hgt.max())
+    diag = float(np.linalg.norm(np.ptp(plant, axis=0)))
+    if not height > 0:
+        raise InputError("the cloud has no height above the ground plane")
+    voxel = params.voxel_fraction * diag
+    cloud, _, mass = voxel_downsample(plant, voxel)
+    mass = mass.astype(float)
+    info: dict = {"points": len(pts), "plant_points": len(plant), "voxel": voxel, "vertices": len(cloud)}
+    if len(cloud) < 3:
+        raise InputError(f"the cloud collapses to {len(cloud)} voxels of {voxel:.4g} m; too small to skeletonise")
+    spacing = max(median_spacing(cloud), 1e-9)
+    graph = knn_graph(cloud, params.k, max_edge=params.max_edge_factor * spacing)
+    graph, nbridges = bridge_components(cloud, graph)
+    info["bridges"] = nbridges
+    cloud_h = ground.height(cloud)
+    roots = find_roots(cloud, cloud_h, graph, slab=params.root_slab_fraction * height + voxel,
+                       group_cell=max(params.plant_gap_fraction * height, 2 * params.max_edge_factor * spacing))
+    info["roots"] = len(roots)
+    _, parents, _ = shortest_path_tree(graph, roots)
+    pos = cloud.copy()
+    vmass = mass.copy()
+    tree = cKDTree(cloud)
+    min_r = params.min_radius_fraction * height
+
+    # trunk radius per root from the cloud (vertical axis first; refined below with the skeleton's direction)
+    def root_radii(pos: np.ndarray, par: np.ndarray, field: np.ndarray | None) -> np.ndarray:
+        out = []
+        for r in np.flatnonzero(par < 0):
+            axis = field[r] if field is not None else np.array([0.0, 0.0, 1.0])
+            base = pos[r] - axis * voxel
+            rad, _ = stem_radius(plant, base, axis, length=params.trunk_fit_fraction * height,
+                                 max_radius=0.1 * height, fallback=2 * voxel)
+            out.append(max(rad, min_r))
+        return np.asarray(out)
+
+    field = None
+    for _ in range(params.outer_iterations):
+        w = subtree_lengths(pos, parents) + voxel
+        field = orientation_field(pos, parents, w)
+        rr = root_radii(pos, parents, field)
+        radii = pipe_model_radii(w, parents, rr, exponent=params.radius_exponent, min_radius=min_r)
+        rho = np.clip(params.anchor_radius_factor * radii, voxel, 0.1 * height)
+        anchors = _anchors(tree, cloud, mass, pos, field, rho)
+        pos = reembed(pos, parents, w, field, anchors, params.data_weight)
+        pos, parents, vmass, _ = spatial_merge(pos, parents, vmass, params.merge_factor * voxel)
+    info["bsg_vertices"] = len(pos)
+
+    # simplification until stable
+    for _ in range(params.simplify_rounds):
+        n_before = len(pos)
+        keep = prune_by_ratio(pos, parents, params.prune_ratio)
+        keep &= prune_short_tips(pos, parents, params.min_twig_voxels * voxel, rounds=1)
+        parents, _ = remove_nodes(parents, keep)
+        pos, vmass = pos[keep], vmass[keep]
+        w = subtree_lengths(pos, parents) + voxel
+        pos, parents, index = merge_siblings(pos, parents, w, max_angle_deg=params.sibling_angle_deg,
+                                             length_ratio=params.sibling_length_ratio)
+        vm = np.zeros(len(pos))
+        np.add.at(vm, index, vmass)
+        vmass = vm
+        w = subtree_lengths(pos, parents) + voxel
+        field = orientation_field(pos, parents, w)
+        radii = pipe_model_radii(w, parents, root_radii(pos, parents, field), exponent=params.radius_exponent,
+                                 min_radius=min_r)
+        alive, parents = remove_degree2(pos, parents, radii)
+        pos, vmass = pos[alive], vmass[alive]
+        if len(pos) == n_before:
+            break
+
+    # radii, anchored on the trunk fit; then the ground node under each root
+    w = subtree_lengths(pos, parents) + voxel
+    field = orientation_field(pos, parents, w)
+    rr = root_radii(pos, parents, field)
+    radii = pipe_model_radii(w, parents, rr, exponent=params.radius_exponent, min_radius=min_r)
+    gz = pos[:, 0] * ground.coef[0] + pos[:, 1] * ground.coef[1] + ground.coef[2]
+    pos, parents, radii, _ = anchor_roots(pos, parents, radii, gz, min_gap=0.25 * voxel)
+    skeleton = Skeleton(pos, np.maximum(radii, min_r), parents, branch_orders(parents, radii))
+
+    # leaves in the lobes: crown points the tubes do not explain, one leaf per leaf-sized cell, each hanging from
+    # the nearest node of a terminal subtree (supported length <= lobe_fraction of its root's)
+    leaf_len = params.leaf_length_fraction * height
+    dist, _, rad = skeleton_distance(plant, pos, parents, skeleton.radii, step=0.5 * voxel)
+    fol = dist > rad + params.foliage_margin * voxel
+    w = subtree_lengths(pos, parents)
+    lobe = w <= params.lobe_fraction * w[parents < 0].max()
+    lobe &= parents >= 0
+    if lobe.any() and fol.any():
+        s_pts, s_node, _ = sample_edges(pos, np.where(lobe, parents, -1), skeleton.radii, 0.5 * voxel)
+        in_lobe = lobe[s_node]
+        _, j = cKDTree(s_pts[in_lobe]).query(plant[fol], k=1, workers=-1)
+        lnode_pt = s_node[in_lobe][j]
+    else:
+        lnode_pt = np.zeros(int(fol.sum()), np.int64)
+    cen, normal, lnode, _ = foliage_cells(plant[fol], lnode_pt, leaf_len)
+    axis = unit(cen - pos[lnode])
+    base = cen - 0.5 * leaf_len * axis
+    frames = leaf_frames(base, axis, normal)
+    leaf_mesh, leaves = bezier_leaves(frames, np.full(len(cen), leaf_len), lnode)
+    wood = branch_mesh(skeleton, edge_length=max(voxel, 2 * np.pi * float(rr.max()) / 12))
+    info.update(nodes=len(pos), leaves=len(leaves), height=height, root_radii=rr.tolist())
+    return LivnyResult(skeleton, TriMesh.concatenate([wood, leaf_mesh]), leaves, info)
+

@@ -1,0 +1,305 @@
+"""The Xu, Gossett, Chen 2007 pipeline (seed 002) end to end: :func:`reconstruct_xu`.
+
+Parameters are the paper's Table I values for its 20 m elm, scaled by ``plant height / 20 m`` where they are
+lengths (the paper: "all parameter values ... are based on trees of this size"; the issue: scale with plant size).
+Where the paper gives no value, the choice is ours ([S]) and says why.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import csgraph
+from scipy.spatial import cKDTree
+
+from plantbench.errors import InputError
+from plantbench.plant import Leaf, Skeleton, TriMesh
+from reference_impl.common.geometry import branch_mesh, leaf_frames, quad_leaves
+from reference_impl.common.graph import (
+    children_csr,
+    median_spacing,
+    radius_graph,
+    voxel_downsample,
+)
+from reference_impl.common.ground import GroundParams, remove_ground
+from reference_impl.common.inputs import MIN_POINTS, check_points
+from reference_impl.common.radii import murray_angle, wbe_murray_radii
+from reference_impl.common.roots import anchor_roots, find_roots, stem_radius
+from reference_impl.common.skeleton_ops import branch_orders, hermite_smooth, prune_short_tips, remove_nodes, unit
+from reference_impl.xu.skeleton import BinSkeleton, bin_skeleton, probe_extend
+from reference_impl.xu.synthesis import (
+    axil_angles,
+    leaf_locations,
+    prune_bare_twigs,
+    support,
+    synthesize,
+)
+
+__all__ = ["XuParams", "XuResult", "reconstruct_xu", "adjust_branch_angles"]
+
+
+@dataclass(frozen=True)
+class XuParams:
+    """Parameters of the Xu-style baseline. Lengths marked "at 20 m" are scaled by height / reference_height."""
+
+    reference_height: float = 20.0
+    """Height of the paper's example elm, metres (section 3); lengths below are scaled from it."""
+    neighbourhood: float = 0.2
+    """Local neighbourhood of the radius graph at 20 m (Table I, section 4.1)."""
+    min_spacing_factor: float = 2.5
+    """... but at least this many median point spacings, so a sparse scan still links neighbours (the paper: the
+    neighbourhood depends on the scanning resolution) [S]."""
+    downsample_factor: float = 1.0 / 3.0
+    """Voxel downsampling at this fraction of the neighbourhood before the graph, for speed; it keeps the radius
+    graph's connectivity [S: the paper used all 115k points]."""
+    bin_factor: float = 1.0
+    """Geodesic bin width in neighbourhoods (the paper gives no value; one neighbourhood makes each bin one graph
+    hop deep, like Brostow et al.'s level sets) [S]."""
+    spur_bins: float = 2.0
+    """Main-skeleton terminal chains shorter than this many bins that hang from a junction are bin noise; their
+    points become leaf points [S: the notes' clean-up step]."""
+    root_slab_fraction: float = 0.02
+    """Stem bases searched in the lowest 2 % of the height; one root per stem (the paper's user picks the root; a
+    multi-stem shrub has one per stem) [S]."""
+    plant_gap_fraction: float = 0.05
+    """Clouds separated by more than about this fraction of the height (and two neighbourhoods) are separate plants,
+    each with its own root [S]."""
+    cone_angle_deg: float = 45.0
+    """Bi-directional probing cone, half-angle (Table I, section 4.2: slightly above the mean axil angle)."""
+    max_gap: float = 2.0
+    """Largest gap bridged by probing at 20 m (Table I, section 4.2)."""
+    probe_height_fraction: float = 2.0 / 3.0
+    """Only nodes with shortest path below this fraction of the height probe (section 4.2)."""
+    support_distance: float = 0.1
+    """d0: largest distance from a supported leaf location to its feasible node at 20 m (Table I, section 4.3)."""
+    density_range: float = 0.5
+    """Leaf density range at 20 m (Table I, section 4.3)."""
+    leaf_group: float = 0.1
+    """Leaf-location grouping cell at 20 m: the paper's "sphere based on leaf size"; we take d0 (Table I's twig
+    length), which matches the ~32k leaf quads of Table II for 115k points [S]."""
+    synthesis_iterations: int = 3
+    """Maximal skeleton synthesis iterations (Table I, section 4.3)."""
+    bare_twig_keep: float = 0.25
+    """Fraction of unnecessary twigs kept (Table I, section 4.4)."""
+    default_axil_deg: tuple[float, float] = (34.1, 7.4)
+    """Mean and standard deviation of axil angles used when the skeleton has fewer than 3 splits (Fig. 6) [S]."""
+    hermite_min_angle_deg: float = 30.0
+    """A transition is sharp (section 4.4) above this turn [S: the paper gives no threshold]."""
+    wbe_exponent: float = 1.5
+    """Eq. 4 exponent (WBE, section 5.2)."""
+    murray_exponent: float = 2.49
+    """Eq. 5 exponent (Murray, section 5.2)."""
+    angle_tolerance_deg: float = 10.0
+    """Branching angles further than this from Eq. 3's prediction are adjusted (section 5.2) [S]."""
+    angle_shift_limit: float = 0.5
+    """The split point moves at most this fraction of the adjacent parent edges [S: "closer to", not onto]."""
+    trunk_fit_fraction: float = 0.05
+    """Base radius fitted to the cloud over this fraction of the height (section 5.2: from the scan) [S]."""
+    min_radius_fraction: float = 0.0005
+    """Smallest radius, fraction of the height [S]."""
+    leaf_bins: int = 4
+    """Density bins for leaf clusters of 1..leaf_bins leaves per quad (section 6, Fig. 8) [S: Fig. 8 shows 4]."""
+    leaf_jitter_deg: float = 10.0
+    """Random perturbation of the quad normals (section 6: "slightly") [S]."""
+    max_nodes: int = 20000
+    """Synthesis stops beyond this many skeleton nodes [S: bounds time and memory; Table II reaches 14,653 nodes
+    for a 20 m elm]."""
+
+
+@dataclass(frozen=True)
+class XuResult:
+    skeleton: Skeleton
+    mesh: TriMesh
+    leaves: list[Leaf]
+    info: dict
+
+
+def adjust_branch_angles(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, *, tolerance_deg: float,
+                         shift_limit: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Section 5.2: at each split, a lateral child (not the thickest) whose angle to the parent direction differs
+    from Eq. 3's prediction by more than ``tolerance_deg`` gets a new split point S on the parent axis, moved along
+    the axis (at most ``shift_limit`` of the neighbouring edge) towards the point where the angle equals the
+    prediction. S is inserted as a node; the child hangs from it. Returns positions, parents, radii and the number
+    of adjusted branches."""
+    pos = [p for p in positions]
+    par = list(parents)
+    rad = list(radii)
+    ptr, kids = children_csr(parents)
+    adjusted = 0
+    for j in np.flatnonzero((np.diff(ptr) >= 2) & (parents >= 0)):
+        c_all = kids[ptr[j]:ptr[j + 1]]
+        main = c_all[np.argmax(radii[c_all])]
+        d = unit(positions[j] - positions[parents[j]])
+        up_len = float(np.linalg.norm(positions[j] - positions[parents[j]]))
+        down_len = float(np.linalg.norm(positions[main] - positions[j]))
+        for c in c_all:
+            if c == main:
+                continue
+            rel = positions[c] - positions[j]
+            a = float(rel @ d)
+            h = float(np.linalg.norm(rel - a * d))
+            if h < 1e-12:
+                continue
+            actual = np.arctan2(h, a)
+            pred = float(murray_angle(radii[j], radii[c]))
+            if abs(np.degrees(actual - pred)) <= tolerance_deg:
+                continue
+            t = a - h / np.tan(np.clip(pred, 1e-3, np.pi - 1e-3))
+            t = float(np.clip(t, -shift_limit * up_len, shift_limit * down_len))
+            if abs(t) < 1e-9:
+                continue
+            if t < 0:  # on the parent edge: S between parent(j) and j
+                s_pos, s_par = positions[j] + t * d, int(par[j])
+                pos.append(s_pos)
+                par.append(s_par)
+                rad.append(float(radii[j]))
+                par[j] = len(pos) - 1
+            else:  # on the main child's edge
+                dm = unit(positions[main] - positions[j])
+                pos.append(positions[j] + t * dm)
+                par.append(int(j))
+                rad.append(float(radii[main]))
+                par[main] = len(pos) - 1
+            par[c] = len(pos) - 1
+            adjusted += 1
+            break  # one adjustment per split keeps the main axis intact
+    return np.asarray(pos), np.asarray(par, np.int64), np.asarray(rad), adjusted
+
+
+def _main_components(labels: np.ndarray, roots: np.ndarray) -> np.ndarray:
+    return np.isin(labels, np.unique(labels[roots]))
+
+
+def reconstruct_xu(points: np.ndarray, rng: np.random.Generator, params: XuParams = XuParams()) -> XuResult:
+    """Skeleton, branch mesh + leaf quads, and leaves from a cloud (metres, Z up, ground near z = 0).
+
+    points : (n, 3) float. Raises InputError for too few valid points or non-finite coordinates.
+    """
+    pts = check_points(points)
+    ground = remove_ground(pts, rng, GroundParams())
+    plant = pts[ground.keep]
+    if len(plant) < MIN_POINTS:
+        raise InputError(f"only {len(plant)} points above the ground; at least {MIN_POINTS} are needed")
+    height = float(ground.height(plant).max())
+    if not height > 0:
+        raise InputError("the cloud has no height above the ground plane")
+    s = height / params.reference_height
+    spacing = median_spacing(plant)
+    radius = max(params.neighbourhood * s, params.min_spacing_factor * spacing)
+    cloud, _, _ = voxel_downsample(plant, params.downsample_factor * radius)
+    if len(cloud) < 3:
+        raise InputError(f"the cloud collapses to {len(cloud)} cells; too small to skeletonise")
+    width = params.bin_factor * radius
+    d0, dens_r, group = params.support_distance * s, params.density_range * s, params.leaf_group * s
+    gap = params.max_gap * s
+    info: dict = {"points": len(pts), "plant_points": len(plant), "neighbourhood": radius, "vertices": len(cloud)}
+
+    # 4.1 main skeleton from the root subgraph(s)
+    graph = radius_graph(cloud, radius)
+    ncomp, labels = csgraph.connected_components(graph, directed=False)
+    h = ground.height(cloud)
+    roots = find_roots(cloud, h, graph, slab=params.root_slab_fraction * height + radius,
+                       group_cell=max(params.plant_gap_fraction * height, 2 * radius))
+    in_main = _main_components(labels, roots)
+    main = bin_skeleton(cloud, graph, np.flatnonzero(in_main), roots, width)
+    info.update(subgraphs=int(ncomp), roots=len(roots), main_nodes=len(main.positions))
+
+    # 4.2 bi-directional probing
+    ext, attached, joined = probe_extend(cloud, graph, labels, main, in_main, width=width,
+                                         cone_deg=params.cone_angle_deg, gap=gap,
+                                         max_geodesic=params.probe_height_fraction * height)
+    info["joined_subgraphs"] = joined
+    # clean-up [S]: bin-noise spurs go; their points count as leaf points with the unattached ones
+    keep = prune_short_tips(ext.positions, ext.parents, params.spur_bins * width)
+    new_par, index = remove_nodes(ext.parents, keep)
+    pos = ext.positions[keep]
+    par = new_par
+    pnode = np.where(ext.point_node >= 0, index[np.maximum(ext.point_node, 0)], -1)
+    leaf_pts = cloud[(~attached) | (attached & (pnode < 0))]
+    info["scanned_nodes"] = len(pos)
+
+    # 4.3 leaf locations, axil statistics, synthesis
+    locs, density = leaf_locations(leaf_pts, group, dens_r)
+    axil = axil_angles(pos, par)
+    mu, sd = (float(axil.mean()), float(axil.std())) if len(axil) >= 3 else params.default_axil_deg
+    sd = max(sd, 1.0)
+    i1, i2 = (mu - sd, mu + sd), (mu - 2 * sd, mu + 2 * sd)
+    info.update(leaf_locations=len(locs), axil_mean=mu, axil_std=sd)
+    syn = synthesize(pos, par, locs, density, d0=d0, interval=i1, group=group,
+                     iterations=params.synthesis_iterations, max_nodes=params.max_nodes)
+    pos, par, synthetic = syn.positions, syn.parents, syn.synthetic
+    info.update(synthesis_iterations=syn.iterations, synthesized_branches=syn.branches)
+
+    # 4.4 pruning of bare synthesised twigs (25 % kept), then Hermite smoothing
+    snode, _, sup = support(locs, pos, par, d0=d0, interval=i2)
+    supporting = np.zeros(len(pos), bool)
+    supporting[snode[sup]] = True
+    keep, bare_tips = prune_bare_twigs(pos, par, synthetic, supporting, params.bare_twig_keep, rng)
+    par, index = remove_nodes(par, keep)
+    pos, synthetic = pos[keep], synthetic[keep]
+    bare_tips = index[bare_tips]
+    bare_pos = pos[bare_tips[bare_tips >= 0]]
+    pos, par, _ = hermite_smooth(pos, par, min_angle_deg=params.hermite_min_angle_deg, min_spacing=width)
+
+    # 5.2 radii (Eq. 4, 5) anchored on the scanned base radius, then branching angles (Eq. 3)
+    min_r = params.min_radius_fraction * height
+    rr = []
+    for r in np.flatnonzero(par < 0):
+        kids = np.flatnonzero(par == r)
+        axis = unit(pos[kids[0]] - pos[r]) if len(kids) else np.array([0.0, 0.0, 1.0])
+        rad, _ = stem_radius(plant, pos[r] - axis * radius, axis, length=params.trunk_fit_fraction * height,
+                             max_radius=0.1 * height, fallback=radius)
+        rr.append(max(rad, min_r))
+    rr = np.asarray(rr)
+    radii = wbe_murray_radii(pos, par, rr, wbe_exponent=params.wbe_exponent,
+                             murray_exponent=params.murray_exponent, min_radius=min_r)
+    pos, par, radii, nadj = adjust_branch_angles(pos, par, radii, tolerance_deg=params.angle_tolerance_deg,
+                                                 shift_limit=params.angle_shift_limit)
+    info["angles_adjusted"] = nadj
+    gz = pos[:, 0] * ground.coef[0] + pos[:, 1] * ground.coef[1] + ground.coef[2]
+    pos, par, radii, _ = anchor_roots(pos, par, radii, gz, min_gap=0.25 * radius)
+    skeleton = Skeleton(pos, np.maximum(radii, min_r), par, branch_orders(par, radii))
+
+    # 6 leaves: a quad per supported location on its nearest feasible node, plus clusters on kept bare twigs
+    snode, _, sup = support(locs, pos, par, d0=d0, interval=i2)
+    leaf_mesh, leaves = _leaf_quads(locs[sup], density[sup], snode[sup], pos, par, bare_pos, group, params, rng)
+    wood = branch_mesh(skeleton, edge_length=max(0.5 * radius, 2 * np.pi * float(rr.max()) / 12))
+    info.update(nodes=len(pos), leaves=len(leaves), height=height, root_radii=rr.tolist())
+    return XuResult(skeleton, TriMesh.concatenate([wood, leaf_mesh]), leaves, info)
+
+
+def _leaf_quads(locs, density, snode, pos, par, bare_pos, size, params: XuParams, rng):
+    """Section 6: normal (SL x d) x SL, slightly perturbed; density bins -> 1..leaf_bins leaves per quad (side
+    proportional to sqrt(count): area proportional to the number of leaves); bare twigs get random clusters."""
+    from reference_impl.xu.synthesis import node_directions
+
+    d = node_directions(pos, par)
+    k = len(locs)
+    count = np.ones(k, np.int64)
+    if k:
+        order = np.argsort(-density, kind="stable")
+        count[order] = 1 + (np.arange(k) * params.leaf_bins) // k
+    sl = unit(locs - pos[snode]) if k else np.zeros((0, 3))
+    normal = np.cross(np.cross(sl, d[snode]), sl) if k else np.zeros((0, 3))
+    # extra leaves at the tips of the kept bare twigs (random cluster size)
+    if len(bare_pos):
+        tree_nodes = cKDTree(pos).query(bare_pos, k=1)[1]
+        extra_dir = d[tree_nodes]
+        locs = np.concatenate([locs, bare_pos + 0.5 * size * extra_dir])
+        snode = np.concatenate([snode, tree_nodes])
+        sl = np.concatenate([sl, extra_dir])
+        normal = np.concatenate([normal, np.cross(np.cross(extra_dir, [0.0, 0.0, 1.0]), extra_dir)])
+        count = np.concatenate([count, rng.integers(1, params.leaf_bins + 1, len(bare_pos))])
+    if len(locs) == 0:
+        return TriMesh.empty(), []
+    jitter = rng.normal(0.0, np.radians(params.leaf_jitter_deg), (len(locs), 3))
+    normal = unit(unit(normal) + jitter)
+    length = size * np.sqrt(count)
+    frames = leaf_frames(locs - 0.5 * length[:, None] * sl, sl, normal)
+    extra = [{"model": "quad", "leaves": int(c)} for c in count]
+    return quad_leaves(frames, length, 0.5 * length, snode, extra)
+
+
+
+_ = BinSkeleton  # re-exported type for callers inspecting intermediate results

@@ -1,0 +1,184 @@
+"""Xu, Gossett, Chen 2007 section 4.1-4.2: the main skeleton from geodesic bins and its extension by
+bi-directional probing. Pure functions over arrays; see :mod:`reference_impl.xu` for the parameters."""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse import csgraph
+from scipy.spatial import cKDTree
+
+from reference_impl.common.skeleton_ops import unit
+
+__all__ = ["BinSkeleton", "bin_skeleton", "probe_extend"]
+
+
+@dataclass
+class BinSkeleton:
+    """A skeleton from geodesic bins: node centroids, parents, mean geodesic distance, and for every member point
+    its node (``point_node``, -1 for points outside the processed subgraph)."""
+
+    positions: np.ndarray
+    parents: np.ndarray
+    geodesic: np.ndarray
+    point_node: np.ndarray
+
+
+def bin_skeleton(points: np.ndarray, graph: sp.csr_matrix, members: np.ndarray, roots: np.ndarray,
+                 width: float) -> BinSkeleton:
+    """Section 4.1 on the subgraph induced by ``members`` (indices into ``points``) from ``roots`` (indices into
+    ``points``, members themselves).
+
+    Shortest paths from the roots (Dijkstra), path lengths quantised in bins of ``width``, each bin split into the
+    connected components of the edges inside it (as Brostow et al. 2004); each component's centroid is a skeleton
+    node whose parent is the component holding the shortest-path predecessors of most of its points (so parents lie
+    in strictly lower bins and the result is a forest rooted in the roots' bin-0 components). Unreachable members
+    get no node.
+    """
+    members = np.asarray(members, np.int64)
+    n = len(points)
+    local = np.full(n, -1, np.int64)
+    local[members] = np.arange(len(members))
+    sub = graph[members][:, members].tocsr()
+    dist, pred, _ = csgraph.dijkstra(sub, directed=False, indices=local[np.asarray(roots, np.int64)],
+                                  return_predecessors=True, min_only=True)
+    reach = np.isfinite(dist)
+    bins = np.where(reach, np.floor(dist / width), -1).astype(np.int64)
+    coo = sub.tocoo()
+    same = (bins[coo.row] == bins[coo.col]) & reach[coo.row]
+    m = len(members)
+    inbin = sp.coo_matrix((np.ones(same.sum()), (coo.row[same], coo.col[same])), shape=(m, m))
+    _, comp = csgraph.connected_components(inbin, directed=False)
+    comp = np.where(reach, comp, -1)
+    ids, comp_r = np.unique(comp[reach], return_inverse=True)
+    k = len(ids)
+    node = np.full(m, -1, np.int64)
+    node[reach] = comp_r
+    cnt = np.bincount(comp_r, minlength=k).astype(float)
+    pos = np.zeros((k, 3))
+    np.add.at(pos, comp_r, points[members[reach]])
+    pos /= cnt[:, None]
+    geo = np.zeros(k)
+    np.add.at(geo, comp_r, dist[reach])
+    geo /= cnt
+    # parent: majority component of predecessors lying in other components
+    src = np.flatnonzero(reach & (pred >= 0))
+    a, b = node[src], node[pred[src]]
+    diff = a != b
+    a, b = a[diff], b[diff]
+    parents = np.full(k, -1, np.int64)
+    if len(a):
+        pair = a * k + b
+        up, upc = np.unique(pair, return_counts=True)
+        child, par = up // k, up % k
+        order = np.lexsort((-upc, child))
+        first = np.ones(len(order), bool)
+        first[1:] = child[order][1:] != child[order][:-1]
+        parents[child[order][first]] = par[order][first]
+    point_node = np.full(n, -1, np.int64)
+    point_node[members] = node
+    return BinSkeleton(pos, parents, geo, point_node)
+
+
+def _cone_hits(origin: np.ndarray, axis: np.ndarray, cand: np.ndarray, half_angle: float, reach: float
+               ) -> np.ndarray:
+    """Mask of candidate points inside the cone (apex ``origin``, unit ``axis``, half-angle, length ``reach``)."""
+    v = cand - origin
+    d = np.linalg.norm(v, axis=1)
+    cos = (v @ axis) / np.maximum(d, 1e-15)
+    return (d <= reach) & (d > 1e-12) & (cos >= np.cos(half_angle))
+
+
+def probe_extend(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray, main: BinSkeleton,
+                 attached: np.ndarray, *, width: float, cone_deg: float, gap: float, max_geodesic: float,
+                 min_nodes: int = 2, tangent_nodes: int = 3) -> tuple[BinSkeleton, np.ndarray, int]:
+    """Section 4.2: breadth-first over the skeleton; at each node with geodesic distance below ``max_geodesic`` a
+    cone (half-angle ``cone_deg``, along parent -> node) looks for the nearest point of an unattached subgraph G
+    within ``gap``; G's own bin skeleton is built from that point P; a cone from P along the tangent T (from G's
+    first ``tangent_nodes`` nodes back through P) must hit the main skeleton (a node or an edge) at Q within ``gap``;
+    then G joins with the segment PQ (Q inserted on the edge if new) and its nodes go to the back of the queue.
+
+    labels : (n,) connected-component label of every point; attached : (n,) bool, points already in the skeleton.
+    Subgraphs whose skeleton has fewer than ``min_nodes`` nodes are not joined (our guard: no tangent exists).
+    Each node probes once, so the loop is bounded by the final node count. Returns the extended skeleton, the
+    updated ``attached`` mask and the number of subgraphs joined.
+    """
+    pos = [p for p in main.positions]
+    par = list(main.parents)
+    geo = list(main.geodesic)
+    point_node = main.point_node.copy()
+    attached = attached.copy()
+    tree = cKDTree(points)
+    half = np.radians(cone_deg)
+    queue = deque(range(len(pos)))
+    rejected = np.zeros(labels.max() + 1, bool)
+    joined = 0
+    while queue:
+        v = queue.popleft()
+        if geo[v] >= max_geodesic:
+            continue
+        axis = unit(pos[v] - pos[par[v]]) if par[v] >= 0 else np.array([0.0, 0.0, 1.0])
+        near = np.asarray(tree.query_ball_point(pos[v], gap), np.int64)
+        near = near[~attached[near] & ~rejected[labels[near]]]
+        if len(near) == 0:
+            continue
+        hit = near[_cone_hits(pos[v], axis, points[near], half, gap)]
+        if len(hit) == 0:
+            continue
+        p_idx = hit[np.argmin(np.linalg.norm(points[hit] - pos[v], axis=1))]
+        g_label = labels[p_idx]
+        members = np.flatnonzero(labels == g_label)
+        sub = bin_skeleton(points, graph, members, np.array([p_idx]), width)
+        if len(sub.positions) < min_nodes:
+            rejected[g_label] = True
+            continue
+        # tangent at P: from the centroid of G's first nodes (by geodesic distance) back through P
+        first = np.argsort(sub.geodesic, kind="stable")[:tangent_nodes]
+        p_pos = points[p_idx]
+        tangent = unit(p_pos - sub.positions[first[1:]].mean(0)) if len(first) > 1 else -axis
+        # back-probe: nearest point of the current skeleton's edges (or nodes) inside the cone from P
+        P = np.asarray(pos)
+        parr = np.asarray(par)
+        child = np.flatnonzero(parr >= 0)
+        a, b = P[parr[child]], P[child]
+        ab = b - a
+        t = np.clip(np.sum((p_pos - a) * ab, 1) / np.maximum(np.sum(ab * ab, 1), 1e-300), 0, 1)
+        q = np.concatenate([a + t[:, None] * ab, P])
+        ok = _cone_hits(p_pos, tangent, q, half, gap)
+        if not ok.any():
+            continue
+        cand = np.flatnonzero(ok)
+        best = cand[np.argmin(np.linalg.norm(q[cand] - p_pos, axis=1))]
+        if best < len(child):
+            c = int(child[best])
+            tb = t[best]
+            seg = np.linalg.norm(ab[best])
+            if tb * seg < 0.25 * width:
+                qn = int(parr[c])
+            elif (1 - tb) * seg < 0.25 * width:
+                qn = c
+            else:  # insert Q on the edge parent(c) -> c
+                pos.append(q[best])
+                par.append(int(parr[c]))
+                geo.append(geo[parr[c]] + tb * (geo[c] - geo[parr[c]]))
+                qn = len(pos) - 1
+                par[c] = qn
+        else:
+            qn = int(best - len(child))
+        # append G's skeleton; its root node hangs from Q
+        off = len(pos)
+        base_geo = geo[qn] + float(np.linalg.norm(p_pos - pos[qn]))
+        for i in range(len(sub.positions)):
+            pos.append(sub.positions[i])
+            par.append(off + int(sub.parents[i]) if sub.parents[i] >= 0 else qn)
+            geo.append(base_geo + float(sub.geodesic[i]))
+        sel = sub.point_node >= 0
+        point_node[sel] = off + sub.point_node[sel]
+        attached[members] = True
+        queue.extend(range(off, len(pos)))
+        joined += 1
+    out = BinSkeleton(np.asarray(pos), np.asarray(par, np.int64), np.asarray(geo), point_node)
+    return out, attached, joined

@@ -1,0 +1,96 @@
+"""Allometric radii, circle / trunk fits and ground removal against analytic answers."""
+
+import numpy as np
+import pytest
+
+from reference_impl.common.ground import remove_ground
+from reference_impl.common.radii import (
+    fit_circle,
+    fit_trunk_radius,
+    murray_angle,
+    pipe_model_radii,
+    wbe_murray_radii,
+)
+
+
+def test_wbe_murray_radii_follow_eq4_and_eq5():
+    # root 0 -> 1 (single child, Eq. 4) -> split into 2 (length 1) and 3 (length 3) (Eq. 5)
+    pos = np.array([[0, 0, 0], [0, 0, 1], [1, 0, 1], [0, 0, 4]], float)
+    par = np.array([-1, 0, 1, 1])
+    r = wbe_murray_radii(pos, par, 0.1)
+    l1, l0 = 1 + 1 + 3, 1 + 1 + 3  # supported lengths with the incoming edge; the root has none
+    assert np.isclose(r[1], 0.1 * min(l1 / max(l0, 1e-12), 1) ** 1.5)
+    assert np.isclose(r[2], r[1] * (1 / 4) ** (1 / 2.49))
+    assert np.isclose(r[3], r[1] * (3 / 4) ** (1 / 2.49))
+    # chain: r_c = r_p (l_c / l_p)^1.5 node by node
+    pos = np.c_[np.zeros(5), np.zeros(5), np.arange(5.0)]
+    r = wbe_murray_radii(pos, np.array([-1, 0, 1, 2, 3]), 1.0)
+    assert np.allclose(r[2:], r[1:-1] * (np.array([3, 2, 1]) / np.array([4, 3, 2])) ** 1.5)
+
+
+def test_pipe_model_area_is_proportional_to_supported_length():
+    w = np.array([8.0, 4.0, 2.0, 2.0])
+    par = np.array([-1, 0, 1, 1])
+    r = pipe_model_radii(w, par, 0.2)
+    assert np.allclose(r**2 / r[0] ** 2, w / 8.0)
+
+
+def test_murray_angle_eq3():
+    assert np.isclose(murray_angle(1.0, 1.0), 0.0)
+    assert np.degrees(murray_angle(1.0, 0.01)) > 85
+    rp, rc = 1.0, 0.7
+    cos = (1 + 0.7**4 - (1 - 0.7**3) ** (4 / 3)) / (2 * 0.7**2)
+    assert np.isclose(murray_angle(rp, rc), np.arccos(cos))
+
+
+def test_circle_fit_on_a_half_arc(rng):
+    th = rng.uniform(0, np.pi, 300)  # what one scan station sees
+    xy = np.c_[0.3 + 0.05 * np.cos(th), -0.2 + 0.05 * np.sin(th)] + rng.normal(0, 0.0005, (300, 2))
+    c, r = fit_circle(xy)
+    assert np.allclose(c, [0.3, -0.2], atol=0.002) and abs(r - 0.05) < 0.002
+
+
+def test_trunk_fit_on_a_tilted_cylinder(rng):
+    axis = np.array([0.2, 0.0, 1.0]) / np.linalg.norm([0.2, 0.0, 1.0])
+    u = np.cross(axis, [0, 1.0, 0])
+    u /= np.linalg.norm(u)
+    v = np.cross(axis, u)
+    t = rng.uniform(0, 0.5, 2000)
+    th = rng.uniform(0, 2 * np.pi, 2000)
+    pts = t[:, None] * axis + 0.04 * (np.cos(th)[:, None] * u + np.sin(th)[:, None] * v)
+    r, centre = fit_trunk_radius(pts, np.zeros(3), axis, length=0.3, max_radius=0.2)
+    assert abs(r - 0.04) < 1e-3 and np.linalg.norm(centre) < 1e-3
+
+
+def test_ground_is_found_and_removed(rng):
+    ground = np.c_[rng.uniform(-2, 2, (3000, 2)), rng.normal(0.01, 0.002, 3000)]
+    stem = np.c_[0.03 * np.cos(np.linspace(0, 60, 2000)), 0.03 * np.sin(np.linspace(0, 60, 2000)),
+                 np.linspace(0, 2, 2000)]
+    g = remove_ground(np.vstack([ground, stem]), rng)
+    assert g.found and abs(g.coef[2] - 0.01) < 0.003 and np.hypot(*g.coef[:2]) < 0.01
+    assert not g.keep[:3000].any()
+    assert g.keep[3000:].mean() > 0.95  # only the stem's lowest few centimetres go
+
+
+@pytest.mark.parametrize("offset", [0.0, 0.5])
+def test_no_ground_keeps_the_plant(rng, offset):
+    stem = np.c_[0.03 * np.cos(np.linspace(0, 60, 2000)), 0.03 * np.sin(np.linspace(0, 60, 2000)),
+                 np.linspace(0, 2, 2000) + offset]
+    g = remove_ground(stem, rng)
+    assert not g.found and g.keep.all()
+    assert np.isclose(g.coef[2], 0.0 if offset == 0 else stem[:, 2].min(), atol=0.01)
+
+
+def test_stem_radius_ignores_a_neighbouring_stem(rng):
+    """A 2 cm stem seen from one side with a second stem 12 cm away: the growing window stops on the first stem's
+    circle (a single fit over 40 cm would span both)."""
+    from reference_impl.common.roots import stem_radius
+
+    def stem(x, r, n):
+        th = rng.uniform(np.pi, 2 * np.pi, n)  # the half facing -y
+        return np.c_[x + r * np.cos(th), r * np.sin(th), rng.uniform(0, 0.5, n)]
+
+    pts = np.vstack([stem(0.0, 0.02, 3000), stem(0.12, 0.02, 3000)])
+    base = pts[np.argmin(pts[:, 2] + 10 * np.abs(pts[:, 0]))]  # a surface point at the foot of the first stem
+    r, centre = stem_radius(pts, base, np.array([0, 0, 1.0]), length=0.2, max_radius=0.4, fallback=0.5)
+    assert abs(r - 0.02) < 0.003 and np.hypot(*centre[:2]) < 0.005

@@ -1,0 +1,144 @@
+"""Xu et al. 2007 building blocks (sections 4.1-4.4, 5.2) on configurations with known answers."""
+
+import numpy as np
+from scipy.sparse import csgraph
+
+from reference_impl.common.graph import radius_graph
+from reference_impl.common.radii import murray_angle
+from reference_impl.xu.pipeline import adjust_branch_angles
+from reference_impl.xu.skeleton import bin_skeleton, probe_extend
+from reference_impl.xu.synthesis import (
+    axil_angles,
+    leaf_locations,
+    prune_bare_twigs,
+    similarity_transform,
+    support,
+    synthesize,
+    triangle_angles,
+)
+
+
+def _line(z0, z1, n, rng, x=0.0):
+    z = np.linspace(z0, z1, n)
+    return np.c_[np.full(n, x) + rng.normal(0, 1e-3, n), rng.normal(0, 1e-3, n), z]
+
+
+def test_bin_skeleton_of_a_fork(rng):
+    stem = _line(0, 1, 200, rng)
+    t = np.linspace(0.005, 1, 200)[:, None]
+    left = np.array([0, 0, 1.0]) + t * np.array([-0.6, 0, 0.8])
+    right = np.array([0, 0, 1.0]) + t * np.array([0.6, 0, 0.8])
+    pts = np.vstack([stem, left, right])
+    g = radius_graph(pts, 0.05)
+    sk = bin_skeleton(pts, g, np.arange(len(pts)), np.array([0]), 0.05)
+    par = sk.parents
+    assert (par < 0).sum() == 1 and sk.positions[par < 0][0, 2] < 0.05
+    nk = np.bincount(par[par >= 0], minlength=len(par))
+    assert (nk >= 2).sum() == 1 and (nk == 0).sum() == 2  # one split, two tips
+    split = sk.positions[np.flatnonzero(nk >= 2)[0]]
+    assert abs(split[2] - 1.0) < 0.1
+    # every node sits on the input curves (centroids of thin bins)
+    d = np.min(np.linalg.norm(sk.positions[:, None] - pts[None], axis=2), axis=1)
+    assert d.max() < 0.02
+    # parents lie one bin lower along the geodesic
+    assert np.all(sk.geodesic[par >= 0] > sk.geodesic[par[par >= 0]])
+    ang = axil_angles(sk.positions, par, reach=3)
+    assert len(ang) == 1 and abs(ang[0] - np.degrees(np.arctan2(0.6, 0.8))) < 8
+
+
+def test_probing_joins_a_subgraph_across_a_gap(rng):
+    stem = _line(0, 1, 100, rng)
+    upper = _line(1.15, 2.0, 90, rng)  # a 15 cm occlusion gap, more than the 5 cm neighbourhood
+    pts = np.vstack([stem, upper])
+    g = radius_graph(pts, 0.05)
+    ncomp, lab = csgraph.connected_components(g, directed=False)
+    assert ncomp == 2
+    main_mask = lab == lab[0]
+    main = bin_skeleton(pts, g, np.flatnonzero(main_mask), np.array([0]), 0.05)
+    ext, attached, joined = probe_extend(pts, g, lab, main, main_mask, width=0.05, cone_deg=45, gap=0.3,
+                                         max_geodesic=10.0)
+    assert joined == 1 and attached.all()
+    assert (ext.parents < 0).sum() == 1 and len(ext.positions) > len(main.positions)
+    assert ext.positions[:, 2].max() > 1.9
+    # a gap wider than the probing range stays open
+    ext2, attached2, joined2 = probe_extend(pts, g, lab, main, main_mask, width=0.05, cone_deg=45, gap=0.1,
+                                            max_geodesic=10.0)
+    assert joined2 == 0 and not attached2[~main_mask].any()
+
+
+def test_similarity_transform_is_exact_for_similar_triangles(rng):
+    src = rng.random((3, 3))
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    if np.linalg.det(q) < 0:
+        q[:, 0] *= -1
+    dst = 2.5 * src @ q.T + [1, 2, 3]
+    s, rot, t = similarity_transform(src, dst)
+    assert np.isclose(s, 2.5) and np.allclose(rot, q) and np.allclose(s * src @ rot.T + t, dst)
+    ang = triangle_angles(src[0], src[1], src[2])
+    assert np.isclose(ang.sum(), 180.0) and np.allclose(ang, triangle_angles(dst[0], dst[1], dst[2]))
+
+
+def test_support_needs_a_feasible_angle_and_distance():
+    pos = np.array([[0, 0, 0], [0, 0, 1.0]])
+    par = np.array([-1, 0])
+    # node 1 points up; a location at 35 deg from +z is feasible for I1 = [25, 45]; one straight above is not
+    locs = np.array([[np.sin(np.radians(35)) * 0.05, 0, 1 + np.cos(np.radians(35)) * 0.05], [0, 0, 1.05],
+                     [np.sin(np.radians(35)) * 0.5, 0, 1 + np.cos(np.radians(35)) * 0.5]])
+    node, dist, sup = support(locs, pos, par, d0=0.1, interval=(25.0, 45.0))
+    assert node[0] == 1 and sup[0]
+    assert node[1] != 1 and not sup[1]
+    assert node[2] == 1 and not sup[2] and np.isclose(dist[2], 0.5)
+
+
+def test_leaf_locations_and_density(rng):
+    pts = np.vstack([rng.random((200, 3)) * 0.1, rng.random((10, 3)) * 0.1 + 5])
+    loc, dens = leaf_locations(pts, 0.05, 1.0)
+    assert len(loc) > 2
+    far = loc[:, 0] > 4
+    assert np.all(dens[far] == far.sum() - 1) and np.all(dens[~far] == (~far).sum() - 1)
+
+
+def test_synthesis_supports_unsupported_leaves():
+    # a scanned skeleton with one fork (the triangle library) and leaf locations out of reach to its side
+    pos = np.array([[0, 0, 0], [0, 0, 0.5], [0, 0, 1.0], [-0.3, 0, 1.4], [0.3, 0, 1.4], [0, 0, 1.3]], float)
+    par = np.array([-1, 0, 1, 2, 2, 2])
+    locs = np.array([[0.35, 0.0, 0.85], [0.5, 0.0, 0.9], [0.42, 0.05, 0.88]])
+    dens = np.array([2, 1, 2])
+    interval = (20.0, 60.0)
+    _, _, sup0 = support(locs, pos, par, d0=0.08, interval=interval)
+    res = synthesize(pos, par, locs, dens, d0=0.08, interval=interval, group=0.02, iterations=3,
+                     max_nodes=1000)
+    assert not sup0.all() and res.branches >= 1 and res.synthetic.sum() > 0
+    assert np.all(res.parents[res.synthetic] >= 0)
+    # the synthesised nodes are new, hang from the old skeleton, and bring the leaves closer
+    _, d1, _ = support(locs, res.positions, res.parents, d0=0.08, interval=interval)
+    _, d0_, _ = support(locs, pos, par, d0=0.08, interval=interval)
+    assert np.nanmin(np.where(np.isfinite(d1), d1, np.nan)) < np.nanmin(np.where(np.isfinite(d0_), d0_, 10.0))
+
+
+def test_prune_bare_twigs_keeps_a_quarter(rng):
+    # 200 synthetic single-node twigs on a stem, none supporting a leaf
+    n = 200
+    pos = np.vstack([[0, 0, 0], [0, 0, 1], rng.random((n, 3))])
+    par = np.concatenate([[-1, 0], np.ones(n, int)])
+    synth = np.concatenate([[False, False], np.ones(n, bool)])
+    keep, kept = prune_bare_twigs(pos, par, synth, np.zeros(n + 2, bool), 0.25, rng)
+    assert keep[:2].all() and 0.15 < keep[2:].mean() < 0.35 and len(kept) == keep[2:].sum()
+    sup = np.zeros(n + 2, bool)
+    sup[2:] = True
+    keep, _ = prune_bare_twigs(pos, par, synth, sup, 0.25, rng)
+    assert keep.all()
+
+
+def test_branch_angle_moves_towards_murray():
+    # parent thick, lateral thin: Eq. 3 predicts nearly 90 deg; the lateral leaves at 20 deg
+    pos = np.array([[0, 0, 0], [0, 0, 1.0], [0, 0, 2.0], [np.sin(0.35), 0, 1 + np.cos(0.35)]])
+    par = np.array([-1, 0, 1, 1])
+    radii = np.array([0.1, 0.1, 0.09, 0.02])
+    pred = np.degrees(murray_angle(0.1, 0.02))
+    npos, npar, nrad, n = adjust_branch_angles(pos, par, radii, tolerance_deg=5, shift_limit=0.5)
+    assert n == 1
+    s = npar[3]
+    new_angle = np.degrees(np.arccos(np.clip((npos[3] - npos[s])[2] / np.linalg.norm(npos[3] - npos[s]), -1, 1)))
+    assert abs(new_angle - pred) < abs(np.degrees(0.35) - pred)
+    assert np.isclose(npos[s][0], 0) and 1.0 < npos[s][2] <= 1.5  # the split moved up along the main axis
