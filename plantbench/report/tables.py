@@ -67,24 +67,30 @@ def aggregate(table, by: tuple[str, ...] = ("method",), *, n_boot: int = 2000, s
 
 
 def _fmt(mean: float, lo: float, hi: float) -> str:
+    """'mean ± half-width of the interval' (compact, for terminals)."""
     if not np.isfinite(mean):
         return "-"
     if not np.isfinite(lo) or lo == hi:
         return f"{mean:.3g}"
-    return f"{mean:.3g} [{lo:.3g}, {hi:.3g}]"
+    return f"{mean:.3g} ±{(hi - lo) / 2:.2g}"
 
 
 def summary_table(table, metrics: tuple[str, ...] = KEY_METRICS):
-    """A rich Table: one row per method, key metrics as mean [95 % CI], and the number of failed cells."""
+    """A rich Table for the terminal: one row per key metric, one column per method, cells 'mean [95 % CI]',
+    and a last row counting failed cells (metrics down the side fit a terminal better than across)."""
     from rich.table import Table
 
     agg = aggregate(table)
     present = [m for m in metrics if m in set(agg["metric"])]
-    out = Table("method", *present, "failed cells", title="results (mean [95 % bootstrap CI] over cases)")
+    methods = sorted(agg["method"].unique())
+    out = Table("metric", *methods, title="results: mean ± half-width of the 95 % bootstrap CI over cases")
+    idx = agg.set_index(["metric", "method"])
+    for m in present:
+        info = metric_info(m)
+        label = m + ("" if info is None or info.higher_is_better is None else " ↑" if info.higher_is_better else " ↓")
+        out.add_row(label, *(_fmt(*idx.loc[(m, meth), ["mean", "lo", "hi"]]) if (m, meth) in idx.index else "-"
+                             for meth in methods))
     cells = table.groupby(["method", "case"])["status"].agg(lambda s: (s != "ok").any())
     failed = cells.groupby(level=0).sum()
-    for method, grp in agg.groupby("method", sort=True):
-        by_metric = grp.set_index("metric")
-        row = [_fmt(*by_metric.loc[m, ["mean", "lo", "hi"]]) if m in by_metric.index else "-" for m in present]
-        out.add_row(str(method), *row, str(int(failed.get(method, 0))))
+    out.add_row("failed cells", *(str(int(failed.get(meth, 0))) for meth in methods))
     return out
