@@ -1,1 +1,89 @@
-"""guo (not implemented yet)."""
+"""guo: the reference method, Guo et al. "Realistic Procedural Plant Modeling from Multiple View Images" (seed 000
+section 5, with the SIGGRAPH 2017 poster, seed 004): point-cloud-guided procedural growth. A registered ``points``
+method: it reads the ``mvs`` stage's fused cloud for view captures, or a scan's coordinates.
+
+Modules: :mod:`.params` (constants with sources, species prior), :mod:`.weights` (Eq. 8), :mod:`.roots` (density
+roots, trunk cross-section), :mod:`.hull` (Fig. 8 occluded crowns), :mod:`.growth` (L-system 1, space colonisation,
+Eq. 5-7, 9, shedding), :mod:`.refine` (collapse, Hermite smoothing), :mod:`.pipeline` (the whole method on a cloud),
+:mod:`.abs` (analysis-by-synthesis, seed 003 Eq. 3-4).
+
+Options (a suite's ``[method_options.guo]``): every :class:`~reference_impl.guo.params.GuoParams` field by name,
+plus ``prior`` (True: the species hint's parameters; False: generic defaults, to measure what the prior buys) and
+``leaves`` ('procedural', the default: leaves placed per the species library and turned into the cloud;
+'segment': the fitted leaves of the leaf-segmentation stage, not wired yet: raises NotAvailableError). ``candidates=k`` (k > 1) turns on analysis-by-synthesis,
+which needs ``capture_dir/views``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from plantbench.errors import InputError, NotAvailableError
+from plantbench.io.plantio import write_reconstruction
+from plantbench.seeding import rng as seeded_rng
+from reference_impl.common.inputs import load_points
+from reference_impl.guo.params import GENERIC_PRIOR, GuoParams, SpeciesPrior, params_from_options, prior_from_species
+from reference_impl.guo.pipeline import GuoResult, reconstruct_guo
+
+__all__ = ["Guo", "GuoParams", "GuoResult", "SpeciesPrior", "reconstruct_guo", "species_prior"]
+
+
+def species_prior(species: str | None, *, prior: bool = True) -> SpeciesPrior:
+    """The species library entry for ``species`` (InputError, with suggestions, for an unknown name), or the
+    generic prior when ``species`` is None or ``prior`` is False."""
+    if species is None or not prior:
+        return GENERIC_PRIOR
+    from plantbench.species import load_species
+
+    return prior_from_species(load_species(species))
+
+
+class Guo:
+    name = "guo"
+    inputs = "points"
+
+    def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None,
+                    **options) -> GuoResult:
+        """Read ``capture_dir/points.ply``, reconstruct, write skeleton.ply, mesh.ply, leaves.json (and guo.json,
+        the run's statistics). Returns the in-memory result."""
+        options = dict(options)
+        use_prior = options.pop("prior", True)
+        if not isinstance(use_prior, bool):
+            raise InputError(f"guo: prior must be true or false, got {use_prior!r}")
+        leaves = options.pop("leaves", "procedural")
+        if leaves not in ("procedural", "segment"):
+            raise InputError(f"guo: leaves must be 'procedural' or 'segment', got {leaves!r}")
+        if leaves == "segment":
+            raise NotAvailableError("guo: leaves='segment' (fitted leaves of reference_impl.leaves.segment_and_fit, "
+                                    "which needs per-view depth maps) is not wired into guo yet; use "
+                                    "leaves='procedural'")
+        params = params_from_options(options)
+        prior = species_prior(species, prior=use_prior)
+        points = load_points(capture_dir)
+        rng = seeded_rng(seed, "guo")
+        if params.candidates > 1:
+            from reference_impl.guo.abs import analysis_by_synthesis, load_input_views
+
+            cameras, images = load_input_views(capture_dir)
+            result = analysis_by_synthesis(points, cameras, images, rng, params, prior)
+        else:
+            result = reconstruct_guo(points, rng, params, prior)
+        write_reconstruction(out_dir, result.skeleton, mesh=result.mesh, leaves=result.leaves)
+        from plantbench.io.atomic import write_json
+
+        write_json(Path(out_dir) / "guo.json", _jsonable(result.info | {"species": prior.name}))
+        return result
+
+
+def _jsonable(obj):
+    import numpy as np
+
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, float):
+        return round(obj, 9)
+    return obj

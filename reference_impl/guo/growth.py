@@ -1,0 +1,356 @@
+"""Point-cloud-guided growth (seed 000 section 5.2, L-system 1; seed 004 section 2.2).
+
+L-system 1: a seed at each root becomes the apical bud A(p, v) of a stem, heading up. In a growth cycle a bud with
+markers in its perception volume emits a shoot, a chain of n metamers: metamer i starts where metamer i - 1 ends
+(p'_i = p'_{i-1} + v l), keeps the shoot's direction and rolls the phyllotaxy by phi (v'_i = R_phi(v'_{i-1}) turns
+the lateral bud, not the main direction); each metamer ends in a lateral bud L at the branching angle psi
+(v' = R_psi(v)); the apical bud closes the chain. A lateral bud becomes the apical bud of a new axis from the next
+cycle on.
+
+Space colonisation (Palubicki et al. 2009, with seed 000's three adaptations):
+
+- markers are the cloud's points (merged per half-internode voxel, see :class:`~reference_impl.guo.params.GuoParams`)
+  plus, for an occluded crown, Poisson-disk samples of its convex hull; every marker carries its Eq. 8 weight;
+- each bud has a perception cone (opening theta = 90 deg, radius d_i) and an occupancy sphere (kill distance
+  d_k = 0.5 d_i); a marker inside several cones goes to the closest bud (roots compete for the same markers);
+- d_i = rho_t l (seed 000) or floor(rho_t) l (seed 004) from the logistic model: H_t = H_max / (1 + (H_max / H_0 -
+  1) exp(-rho_0 t)) (Eq. 6) in internodes, H_max = K (K l = the plant's height), rho_t = dH_t/dt (Eq. 7);
+- growth direction Eq. 9: V_A = V_default + alpha V_opt + beta V_tropism, V_opt the weighted mean of the unit
+  vectors from the bud to its markers (weights w_i of Eq. 8);
+- the shoot has rho_t metamers (the growth units, Table 1), but stops at the weighted centroid of its markers (the
+  growing distance of space colonisation, section 5.2), and at least one;
+- gaps (our addition, for clouds with unreconstructed parts): when no bud perceives a marker while markers remain,
+  the perception radius of that cycle doubles (at most ``max_widen`` times, up to the plant's size) until one does,
+  and the shoot may then be as long as that radius, so a stem crosses an empty stretch of the cloud instead of
+  stopping there.
+
+Refinement on the fly (section 5.3, Fig. 12): after every cycle the radii follow Eq. 5 from the measured trunk
+radius; a lateral branch thinner than the species' twig radius that has stopped growing for ``shed_age`` cycles
+violates the allometric rule and is shed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from reference_impl.common.graph import subtree_sums
+from reference_impl.common.skeleton_ops import unit
+from reference_impl.guo.params import GuoParams, SpeciesPrior
+
+__all__ = ["logistic_height", "growth_units", "influence_distance", "allometric_radii", "assign_markers", "GrowthOutput",
+           "grow"]
+
+
+def logistic_height(t: float | np.ndarray, h_max: float, h0: float, rho0: float) -> np.ndarray:
+    """Eq. 6: H_t = H_max / (1 + (H_max / H_0 - 1) exp(-rho_0 t))."""
+    a = h_max / h0 - 1.0
+    return h_max / (1.0 + a * np.exp(-rho0 * np.asarray(t, float)))
+
+
+def growth_units(t: float | np.ndarray, h_max: float, h0: float, rho0: float) -> np.ndarray:
+    """Eq. 7: rho_t = dH_t/dt = H_max rho_0 (H_max/H_0 - 1) e^(-rho_0 t) / (1 + (H_max/H_0 - 1) e^(-rho_0 t))^2."""
+    a = h_max / h0 - 1.0
+    e = np.exp(-rho0 * np.asarray(t, float))
+    return h_max * rho0 * a * e / (1.0 + a * e) ** 2
+
+
+def influence_distance(t: int, k_internodes: float, ell: float, params: GuoParams) -> tuple[float, float]:
+    """(rho used, d_i) at cycle t: rho_t of Eq. 7 (its integer part with ``integer_rho``, seed 004), clamped to
+    [rho_min, rho_max]; d_i = rho l."""
+    k = max(float(k_internodes), params.h0 + 1.0)
+    rho = float(growth_units(t, k, params.h0, params.rho0))
+    if params.integer_rho:
+        rho = float(np.floor(rho))
+    rho = float(np.clip(rho, params.rho_min, params.rho_max))
+    return rho, rho * ell
+
+
+def allometric_radii(positions: np.ndarray, parents: np.ndarray, root_radius: np.ndarray, gamma: float, *,
+                     levels: list[np.ndarray], alive: np.ndarray | None = None) -> np.ndarray:
+    """Eq. 5 applied root to tip: d_c = d_p (l_c / sum_j l_j)^gamma, l the branch length a node supports.
+
+    The sum runs over the parent's children and the parent's own internode, so the ratios telescope and every node
+    gets r = r_root (l / l_root)^gamma (the generator's taper along chains; at a junction this is Eq. 5 up to the
+    one internode). root_radius : (n_roots,) in the order of the roots in ``parents``. Dead nodes (``alive``
+    False) support nothing. Returns (n,) radii (not clamped).
+    """
+    n = len(parents)
+    has = parents >= 0
+    inc = np.zeros(n)
+    inc[has] = np.linalg.norm(positions[has] - positions[parents[has]], axis=1)
+    if alive is not None:
+        inc = np.where(alive, inc, 0.0)
+    sup = subtree_sums(inc, parents, levels)
+    root_of = np.arange(n)
+    for idx in levels:
+        c = idx[parents[idx] >= 0]
+        root_of[c] = root_of[parents[c]]
+    roots = np.flatnonzero(parents < 0)
+    rr = np.zeros(n)
+    rr[roots] = root_radius
+    tot = np.maximum(sup[root_of], 1e-12)
+    return rr[root_of] * (np.maximum(sup, 0.0) / tot) ** gamma
+
+
+def assign_markers(markers: np.ndarray, bud_pos: np.ndarray, bud_dir: np.ndarray, apical: np.ndarray, *,
+                   radius: float, cos_half_angle: float, neighbours: int = 8) -> np.ndarray:
+    """(m,) index of the bud each marker feeds, -1 for none: the closest bud within ``radius`` whose perception
+    cone holds the marker; between buds at the same distance (the apical and the lateral bud of one node share
+    its position) the apical bud wins (apical dominance) [S: Palubicki's rule leaves ties open].
+
+    markers : (m, 3); bud_pos : (b, 3); bud_dir : (b, 3) unit cone axes; apical : (b,) bool. Only the
+    ``neighbours`` closest buds of each marker are examined.
+    """
+    nb = len(bud_pos)
+    out = np.full(len(markers), -1, np.int64)
+    if nb == 0 or len(markers) == 0:
+        return out
+    kk = min(neighbours, nb)
+    dist, ind = cKDTree(bud_pos).query(markers, k=kk, distance_upper_bound=radius)
+    if kk == 1:
+        dist, ind = dist[:, None], ind[:, None]
+    rows = np.flatnonzero(np.isfinite(dist[:, 0]))
+    dist, ind = dist[rows], ind[rows]
+    valid = np.isfinite(dist) & (dist > 1e-12)
+    safe = np.where(valid, ind, 0)
+    vec = markers[rows, None, :] - bud_pos[safe]
+    cosang = np.sum(vec * bud_dir[safe], axis=2) / np.where(valid, dist, 1.0)
+    ok = valid & (cosang >= cos_half_angle)
+    key = np.where(ok, dist + np.where(apical[safe], 0.0, 1e-9 * radius), np.inf)
+    best = np.argmin(key, axis=1)
+    has = ok[np.arange(len(rows)), best]
+    out[rows[has]] = safe[has, best[has]]
+    return out
+
+
+@dataclass(frozen=True)
+class GrowthOutput:
+    """The grown skeleton (alive nodes only; parents precede children)."""
+
+    positions: np.ndarray
+    """(n, 3) float."""
+    parents: np.ndarray
+    """(n,) int, -1 at the roots."""
+    lateral: np.ndarray
+    """(n,) bool: first node of a lateral shoot."""
+    radii: np.ndarray
+    """(n,) float: Eq. 5 radii at the end of growth (clamped at half the twig radius)."""
+    iterations: int
+    shed_nodes: int
+    markers_left: int
+    history: list[dict]
+    """Per cycle: t, rho, d_i, markers, buds with markers, new nodes, shed nodes."""
+
+
+class _Nodes:
+    """Growable node arrays."""
+
+    names = ("pos", "head", "ref", "latdir", "parent", "has_main", "has_lat", "lateral", "birth", "depth", "alive",
+             "lat_ok")
+
+    def __init__(self, cap: int = 4096) -> None:
+        self.n = 0
+        self.pos = np.zeros((cap, 3))
+        self.head = np.zeros((cap, 3))
+        self.ref = np.zeros((cap, 3))
+        self.latdir = np.zeros((cap, 3))
+        self.parent = np.full(cap, -1, np.int64)
+        self.has_main = np.zeros(cap, bool)
+        self.has_lat = np.zeros(cap, bool)
+        self.lateral = np.zeros(cap, bool)
+        self.birth = np.zeros(cap, np.int64)
+        self.depth = np.zeros(cap, np.int64)
+        self.alive = np.zeros(cap, bool)
+        self.lat_ok = np.zeros(cap, bool)
+
+    def add(self, **cols) -> np.ndarray:
+        k = len(cols["pos"])
+        if self.n + k > len(self.parent):
+            new = max(self.n + k, 2 * len(self.parent))
+            for name in self.names:
+                old = getattr(self, name)
+                arr = np.full((new,) + old.shape[1:], -1 if name == "parent" else 0, old.dtype)
+                arr[: self.n] = old[: self.n]
+                setattr(self, name, arr)
+        idx = np.arange(self.n, self.n + k)
+        for name, val in cols.items():
+            getattr(self, name)[idx] = val
+        self.alive[idx] = True
+        self.n += k
+        return idx
+
+
+def _perpendicular(d: np.ndarray) -> np.ndarray:
+    a = np.where(np.abs(d[:, [0]]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    return unit(np.cross(d, a))
+
+
+def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rodrigues rotation of v (n, 3) about unit axes (n, 3)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return v * c + np.cross(axis, v) * s + axis * np.sum(axis * v, 1, keepdims=True) * (1 - c)
+
+
+def node_levels(depth: np.ndarray) -> list[np.ndarray]:
+    order = np.argsort(depth, kind="stable")
+    return np.split(order, np.flatnonzero(np.diff(depth[order])) + 1)
+
+
+def grow(markers: np.ndarray, weights: np.ndarray, root_positions: np.ndarray, root_axes: np.ndarray,
+         root_radii: np.ndarray, height: float, prior: SpeciesPrior, params: GuoParams) -> GrowthOutput:
+    """Grow one stem per root towards the markers.
+
+    markers : (m, 3) float; weights : (m,) float > 0 (Eq. 8); root_positions, root_axes : (k, 3) (axes are used for
+    the roll frame only: every seed heads up, as in L-system 1); root_radii : (k,) trunk radii (Eq. 5 anchor);
+    height : plant height (H_max = K l), metres.
+    """
+    p = params
+    ell = prior.internode_length
+    k_int = height / ell
+    psi = np.radians(prior.branching_angle)
+    phi = np.radians(prior.roll_angle)
+    cos_half = float(np.cos(np.radians(p.perception_angle) / 2))
+    trop = np.asarray(p.tropism, float)
+    shed_radius = params.shed_radius * prior.tip_radius
+    min_radius = 0.5 * prior.tip_radius
+    k = len(root_positions)
+    widen_limit = max(float(height), float(np.ptp(markers, axis=0).max()) if len(markers) else 0.0)
+
+    nodes = _Nodes()
+    up = np.tile([0.0, 0.0, 1.0], (k, 1))
+    ref0 = _perpendicular(up)
+    nodes.add(pos=np.asarray(root_positions, float), head=up, ref=ref0, latdir=up, parent=np.full(k, -1),
+              has_main=np.zeros(k, bool), has_lat=np.zeros(k, bool), lateral=np.zeros(k, bool),
+              birth=np.zeros(k, np.int64), depth=np.zeros(k, np.int64), lat_ok=np.zeros(k, bool))
+    mk = np.asarray(markers, float)
+    mw = np.asarray(weights, float)
+    history: list[dict] = []
+    shed_total = 0
+    radii = np.asarray(root_radii, float).copy()
+    t = 0
+    for t in range(p.max_iterations):
+        n = nodes.n
+        rho, d_i = influence_distance(t, k_int, ell, p)
+        d_k = p.kill_factor * d_i
+        alive_idx = np.flatnonzero(nodes.alive[:n])
+        # 1. occupancy: markers within d_k (+ the branch radius) of a node are removed
+        if len(mk):
+            extra = radii[alive_idx] if p.occupy_branch_radius else np.zeros(len(alive_idx))
+            kk = min(4, len(alive_idx))
+            dist, j = cKDTree(nodes.pos[alive_idx]).query(mk, k=kk, distance_upper_bound=d_k + float(extra.max()))
+            if kk == 1:
+                dist, j = dist[:, None], j[:, None]
+            ok = np.isfinite(dist)
+            reach = d_k + extra[np.where(ok, j, 0)]
+            dead = np.any(ok & (dist < reach), axis=1)
+            mk, mw = mk[~dead], mw[~dead]
+        # 2. buds: apical buds, and lateral buds of nodes made in earlier cycles
+        alive = nodes.alive[:n]
+        api = np.flatnonzero(alive & ~nodes.has_main[:n])
+        lat = np.flatnonzero(alive & ~nodes.has_lat[:n] & nodes.lat_ok[:n] & (nodes.birth[:n] < t))
+        bud_node = np.concatenate([api, lat])
+        is_api = np.arange(len(bud_node)) < len(api)
+        bud_dir = np.concatenate([nodes.head[api], nodes.latdir[lat]])
+        bud_pos = nodes.pos[bud_node]
+        entry = {"t": t, "rho": rho, "d_i": d_i, "markers": len(mk), "buds": len(bud_node)}
+        if len(mk) == 0 or len(bud_node) == 0:
+            history.append(entry | {"lit": 0, "new": 0, "shed": 0})
+            break
+        # a gap in the cloud (occluded or unreconstructed parts): when no bud perceives a marker, the perception
+        # radius of this cycle doubles until one does, up to the plant's size (a bounded number of doublings)
+        d_use = d_i
+        for _ in range(p.max_widen + 1):
+            owner = assign_markers(mk, bud_pos, bud_dir, is_api, radius=d_use, cos_half_angle=cos_half,
+                                   neighbours=p.neighbours)
+            if np.any(owner >= 0) or d_use >= widen_limit:
+                break
+            d_use = min(2.0 * d_use, widen_limit)
+        entry["d_used"] = d_use
+        mi = np.flatnonzero(owner >= 0)
+        if len(mi) == 0:
+            history.append(entry | {"lit": 0, "new": 0, "shed": 0})
+            break
+        bi = owner[mi]
+        nb = len(bud_node)
+        w = mw[mi]
+        vec = mk[mi] - bud_pos[bi]
+        u = unit(vec)
+        wsum = np.bincount(bi, weights=w, minlength=nb)
+        vopt = np.stack([np.bincount(bi, weights=w * u[:, c], minlength=nb) for c in range(3)], 1)
+        cen = np.stack([np.bincount(bi, weights=w * vec[:, c], minlength=nb) for c in range(3)], 1)
+        lit = np.flatnonzero(wsum > 0)
+        vopt = vopt[lit] / wsum[lit, None]
+        reach = np.linalg.norm(cen[lit] / wsum[lit, None], axis=1)
+        # Eq. 9
+        v = unit(bud_dir[lit] + p.alpha * vopt + p.beta * trop)
+        nmet = np.clip(np.minimum(np.round(max(rho, d_use / ell)), np.round(reach / ell)), 1, None).astype(np.int64)
+        if nodes.n + int(nmet.sum()) > p.max_nodes:
+            history.append(entry | {"lit": len(lit), "new": 0, "shed": 0, "stopped": "max_nodes"})
+            break
+        g_node = bud_node[lit]
+        g_lat = ~is_api[lit]
+        # roll reference of each shoot: an axis continues its own, a new lateral axis starts across its parent
+        ref = np.where(g_lat[:, None], np.cross(v, nodes.head[g_node]), nodes.ref[g_node])
+        prev = g_node.copy()
+        depth = nodes.depth[g_node]
+        for step in range(int(nmet.max())):
+            act = np.flatnonzero(nmet > step)
+            h = v[act]
+            r0 = ref[act] - np.sum(ref[act] * h, 1, keepdims=True) * h
+            bad = np.linalg.norm(r0, axis=1) < 1e-9
+            r0[bad] = _perpendicular(h[bad])
+            r0 = _rotate(unit(r0), h, phi)
+            ldir = unit(np.cos(psi) * h + np.sin(psi) * r0)
+            first = step == 0
+            new = nodes.add(pos=nodes.pos[prev[act]] + ell * h, head=h, ref=r0, latdir=ldir, parent=prev[act],
+                            has_main=False, has_lat=False, lateral=g_lat[act] & first,
+                            birth=np.full(len(act), t, np.int64), depth=depth[act] + step + 1, lat_ok=True)
+            if first:
+                nodes.has_lat[prev[act][g_lat[act]]] = True
+                nodes.has_main[prev[act][~g_lat[act]]] = True
+            else:
+                nodes.has_main[prev[act]] = True
+            prev[act] = new
+            ref[act] = r0
+        # refinement on the fly: Eq. 5 radii, shedding of thin branches that stopped growing
+        n = nodes.n
+        par = nodes.parent[:n]
+        levels = node_levels(nodes.depth[:n])
+        alive = nodes.alive[:n]
+        radii = allometric_radii(nodes.pos[:n], par, root_radii, prior.diameter_coefficient, levels=levels,
+                                 alive=alive)
+        shed = 0
+        if p.shed:
+            newest = nodes.birth[:n].astype(np.int64).copy()
+            newest[~alive] = -1
+            for idx in reversed(levels):
+                c = idx[par[idx] >= 0]
+                np.maximum.at(newest, par[c], newest[c])
+            cut = alive & nodes.lateral[:n] & (radii < shed_radius) & (newest <= t - p.shed_age)
+            if cut.any():
+                gone = cut.copy()
+                for idx in levels:
+                    c = idx[par[idx] >= 0]
+                    gone[c] |= gone[par[c]]
+                gone &= alive
+                shed = int(gone.sum())
+                nodes.alive[:n] &= ~gone
+                # a shed lateral frees its bud position: the parent does not regrow it (the bud is spent)
+        shed_total += shed
+        history.append(entry | {"lit": len(lit), "new": int(nmet.sum()), "shed": shed})
+        radii = np.maximum(radii, 0.0)
+    n = nodes.n
+    alive = nodes.alive[:n]
+    keep = np.flatnonzero(alive)
+    remap = np.full(n, -1, np.int64)
+    remap[keep] = np.arange(len(keep))
+    par = nodes.parent[keep]
+    parents = np.where(par >= 0, remap[np.maximum(par, 0)], -1)
+    pos = nodes.pos[keep].copy()
+    levels = node_levels(nodes.depth[keep])
+    rad = allometric_radii(pos, parents, root_radii, prior.diameter_coefficient, levels=levels)
+    return GrowthOutput(pos, parents, nodes.lateral[keep].copy(), np.maximum(rad, min_radius), t + 1, shed_total,
+                        len(mk), history)

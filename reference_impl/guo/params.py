@@ -1,0 +1,239 @@
+"""Parameters of the Guo et al. reference (seed 000 section 5, seed 004) and the species prior.
+
+Two kinds of parameters:
+
+- :class:`GuoParams`: the method's constants, each with its source ([P] seed 000's text, [P4] seed 004, [Pal]
+  Palubicki et al. 2009 as quoted in seed 000 section 5.2, [S] our choice where the paper gives no value; lengths
+  that the paper states in metres are for its clouds "scaled into a 10 m x 10 m x 10 m bounding box" (section 6.1)
+  and are scaled here by the plant's size / 10 m).
+- :class:`SpeciesPrior`: the species library entry (Table 1: internode length l, roll phi, branching angle psi,
+  diameter coefficient gamma; number of stems; twig radius; leaves), built from a species TOML by
+  :func:`prior_from_species`, or :data:`GENERIC_PRIOR` (the run without the species hint: the means of seed 000
+  Table 2's six species, generic leaves, stems counted from the cloud).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+
+from plantbench.errors import InputError
+
+__all__ = ["GuoParams", "SpeciesPrior", "GENERIC_PRIOR", "prior_from_species", "params_from_options"]
+
+
+@dataclass(frozen=True)
+class GuoParams:
+    """Constants of the method (source in brackets, see the module docstring)."""
+
+    # --- Eq. 8: point importance weights
+    eps_d: float = 0.03
+    """epsilon_D, metres in the paper's 10 m frame (3 cm) [P]; scaled by extent / 10 m, and at least
+    ``eps_d_min_spacing`` point spacings so that a sparse cloud still has neighbours [S]."""
+    eps_d_min_spacing: float = 2.0
+    """Lower bound of epsilon_D in median point spacings [S]."""
+    eps_a: float = 0.9
+    """epsilon_A: |n_i . n_j| above this counts as the same principal direction [P] (the sign of an eigenvector is
+    arbitrary, so the absolute dot product is compared)."""
+    pca_min_neighbours: int = 6
+    """The PCA giving each point's main direction uses its eps_D ball, and at least this many neighbours [S: the
+    paper does not say]."""
+    weight_neighbours: int = 48
+    """Largest neighbour count examined for the PCA and Eq. 8 (the weight saturates there) [S: bounds the cost]."""
+
+    # --- L-system 1 and space colonisation (section 5.2)
+    perception_angle: float = 90.0
+    """theta, degrees: full opening of the perception cone [Pal, quoted in 5.2]."""
+    kill_factor: float = 0.5
+    """d_k = kill_factor * d_i [Pal, quoted in 5.2]."""
+    occupy_branch_radius: bool = True
+    """The occupancy zone of a node also covers its branch's allometric radius (Eq. 5), so the points on the surface
+    of a thick trunk do not attract its own lateral buds [S: a cloud sampled on branch surfaces has markers at the
+    branch radius, which a kill distance 0.5 d_i smaller than the trunk radius leaves alive]."""
+    h0: float = 2.0
+    """H_0 of Eq. 6 (internodes) [P]."""
+    rho0: float = 0.3
+    """rho_0 of Eq. 6-7 [P]."""
+    integer_rho: bool = False
+    """Use the integer part of rho_t for d_i and the shoot length (seed 004) instead of rho_t (seed 000) [P4]."""
+    rho_min: float = 6.0
+    """d_i is at least rho_min * l: Eq. 7 starts at rho_0 H_0 (1 - H_0/K) < 1 internode (0 with seed 004's integer
+    part), which would stall the first cycles. 6 lies in the range d_i in [4 l, 12 l] that section 5.2 quotes and
+    is the top of Palubicki's perception radius (4-6 internodes); with 4 the kill distance (2 l) leaves leaf points
+    around every twig alive and the skeleton grows ~2x too many branches (maple: S_T 0.39 vs 0.53) [S]."""
+    rho_max: float = 12.0
+    """d_i is at most rho_max * l: the top of the same typical range [S, bound from Pal]."""
+    alpha: float = 1.6
+    """Weight of V_opt in Eq. 9 [P]."""
+    beta: float = 0.3
+    """Weight of the tropism in Eq. 9 [P]."""
+    tropism: tuple[float, float, float] = (0.0, 0.0, -1.0)
+    """V_tropism: the paper's (0, -1, 0) in its Y-up frame, i.e. down in our Z-up frame [P]."""
+    max_iterations: int = 120
+    """Upper bound on growth cycles (the logistic saturates after ~ (ln 99 + ln(K/H0)) / rho0 cycles; growth also
+    stops when no bud perceives a marker) [S]."""
+    max_nodes: int = 400_000
+    """Growth stops before the skeleton exceeds this many nodes (bounded memory on bad input) [S]."""
+    marker_voxel: float = 0.5
+    """Markers: the points merged per voxel of this many internode lengths, each carrying the summed Eq. 8 weight of
+    its points (the paper downsamples its clouds too, section 6.1; one marker per half internode keeps every branch
+    resolvable) [S]."""
+    max_widen: int = 3
+    """Most doublings of the perception radius in a cycle where no bud perceives a marker (gaps in the cloud) [S]."""
+    neighbours: int = 8
+    """Closest buds examined per marker when assigning markers to perception cones [S]."""
+
+    outlier_neighbours: int = 8
+    """Isolated points are dropped before anything else: those whose distance to their outlier_neighbours-th
+    nearest neighbour exceeds ... [S: multi-view floaters would attract branches across empty space]"""
+    outlier_factor: float = 4.0
+    """... this many times the median of that distance [S]."""
+
+    # --- roots (section 5.3, Fig. 9)
+    root_slab: float = 0.1
+    """Points lower than this fraction of the height are projected on the ground plane for the density map (the
+    stems' bases; the crown's projection would otherwise mask them) [S]."""
+    root_cell: float = 1.0
+    """Density map cell, in internode lengths [S]."""
+    root_min_density: float = 0.25
+    """Without a species prior, every density peak above this fraction of the highest one is a root [S]."""
+    trunk_fit_height: float = 0.06
+    """The cross-section fit uses the points between 1 % and this fraction of the height above the root [S]."""
+
+    # --- occluded crowns (Fig. 8)
+    hull_fill: str = "auto"
+    """'auto' (fill when the crown's interior is empty), 'on' or 'off' [P: applied to occluded crowns]."""
+    hull_spacing: float = 2.0
+    """Poisson-disk spacing of the interior samples, internode lengths [S]."""
+    hull_shell_ratio: float = 0.7
+    """'auto' fills when the crown points' median depth inside the hull is below this fraction of the interior
+    samples' (the visible points form a shell around an empty interior) [S]."""
+    hull_max_samples: int = 60_000
+    """At most this many interior samples (the spacing grows if needed) [S]."""
+
+    # --- refinement (section 5.3)
+    shed: bool = True
+    """Shed, on the fly, lateral branches whose Eq. 5 radius (anchored on the measured trunk radius) falls below
+    ``shed_radius`` times the species' twig radius and that stopped growing ("unreasonable branches can be shed once
+    they do not satisfy the allometric rules", section 6.2, Fig. 12) [P]. A tree grown longer than its trunk can
+    feed gets twigs thinner than the species makes, and loses its smallest stopped laterals."""
+    shed_radius: float = 1.0
+    """Shedding threshold as a fraction of the species' one-internode twig radius [S]."""
+    shed_age: int = 3
+    """Cycles without growth before a thin branch is shed [S, Palubicki's shedding delay]."""
+    collapse_angle: float = 10.0
+    """Branch collapse: a degree-2 node whose edges turn by less than this (degrees) ... [S: no value in the paper]."""
+    collapse_radius: float = 0.1
+    """... and whose radii differ by less than this fraction is collapsed into its parent [S]."""
+    smooth_angle: float = 20.0
+    """theta of the Hermite smoothing, degrees [P]."""
+
+    leaf_tip_internodes: int = 0
+    """Leaves go on the thin nodes (species' max_branch_radius) at most this many internodes below a tip
+    ("distributed at the tip nodes", section 5.3); 0 puts them on every thin node, the generator's rule [S]."""
+    leaf_fit: bool = True
+    """Turn each procedural leaf about its base into the cloud around it (blade normal = the local points' smallest
+    principal direction), the data-driven part of the leaf configuration of seed 000's [40] [P: "considering ...
+    the normal direction"; S: the rule]."""
+
+    # --- analysis-by-synthesis (seed 003 Eq. 4)
+    candidates: int = 1
+    """Candidates grown and scored against the input views; 1 disables analysis-by-synthesis."""
+    candidate_jitter: float = 0.1
+    """Relative standard deviation of l and of the angles phi and psi across candidates; also the sigma of the
+    species prior p(M) (a product of Gaussians of the relative deviations) [S]."""
+    mask_dilation: int = 2
+    """Estimated input masks: the cloud splatted into each view, closed with this many pixels [S]."""
+
+
+@dataclass(frozen=True)
+class SpeciesPrior:
+    """What the species library tells the method (Table 1 and the species' organs)."""
+
+    name: str
+    internode_length: float
+    """l, metres."""
+    roll_angle: float
+    """phi, degrees."""
+    branching_angle: float
+    """psi, degrees."""
+    diameter_coefficient: float
+    """gamma of Eq. 5."""
+    roots: int | None
+    """Number of stems (None: count density peaks in the cloud)."""
+    tip_radius: float
+    """Radius of a one-internode twig, metres (the thinnest branch the species makes)."""
+    leaves: object | None = field(default=None, repr=False)
+    """plantbench.generate.foliage.FoliageParams, or None for the generic leaf."""
+
+
+GENERIC_PRIOR = SpeciesPrior(
+    name="generic",
+    internode_length=0.0485,   # mean l of seed 000 Table 2 (0.050, 0.038, 0.051, 0.049, 0.052, 0.051)
+    roll_angle=104.8,          # mean phi (120, 97, 95, 130, 87, 100)
+    branching_angle=37.2,      # mean psi (38, 37, 35, 34, 41, 38)
+    diameter_coefficient=0.44,  # mean gamma (0.45, 0.50, 0.43, 0.42, 0.43, 0.41)
+    roots=None,
+    tip_radius=0.001,
+    leaves=None,
+)
+"""The run without the species hint: Table 2's mean parameters, generic leaves, stems counted from the cloud."""
+
+
+def prior_from_species(spec) -> SpeciesPrior:
+    """The prior of a validated species (plantbench.species.load_species).
+
+    A space-colonisation species gives its Table 1 values. A Weber-Penn species has no Table 1: its prior keeps
+    the generic internode length and gamma, and takes what the W&P parameters do say [S]: the roll of the deepest
+    branch level (nRotate) as phi, the mean |nDownAngle| of the branch levels as psi, one stem, the smallest
+    branch radius as the twig radius, and its leaves.
+    """
+    from plantbench.generate.space_colonisation import foliage_params
+
+    if getattr(spec, "family", "space-colonisation") == "weber-penn":
+        levels = spec.branch_levels
+        return SpeciesPrior(
+            name=spec.name,
+            internode_length=GENERIC_PRIOR.internode_length,
+            roll_angle=float(levels[-1].rotate) if levels else GENERIC_PRIOR.roll_angle,
+            branching_angle=float(min(90.0, max(5.0, sum(abs(lv.down_angle) for lv in levels) / len(levels))))
+            if levels else GENERIC_PRIOR.branching_angle,
+            diameter_coefficient=GENERIC_PRIOR.diameter_coefficient,
+            roots=1,
+            tip_radius=float(spec.wood.min_radius),
+            leaves=foliage_params(spec),
+        )
+    t1 = spec.table1
+    return SpeciesPrior(
+        name=spec.name,
+        internode_length=float(t1.internode_length),
+        roll_angle=float(t1.roll_angle),
+        branching_angle=float(t1.branching_angle),
+        diameter_coefficient=float(t1.diameter_coefficient),
+        roots=int(spec.roots.count),
+        tip_radius=float(spec.wood.tip_radius),
+        leaves=foliage_params(spec),
+    )
+
+
+def params_from_options(options: dict) -> GuoParams:
+    """GuoParams from suite options; unknown names raise InputError listing the valid ones."""
+    names = {f.name for f in fields(GuoParams)}
+    bad = sorted(set(options) - names)
+    if bad:
+        raise InputError(f"guo: unknown option(s) {', '.join(bad)} (valid: {', '.join(sorted(names))}, prior, "
+                         "leaves)")
+    opts = dict(options)
+    if "tropism" in opts:
+        opts["tropism"] = tuple(float(x) for x in opts["tropism"])
+    p = replace(GuoParams(), **opts)
+    if p.hull_fill not in ("auto", "on", "off"):
+        raise InputError(f"guo: hull_fill must be 'auto', 'on' or 'off', got {p.hull_fill!r}")
+    if p.candidates < 1:
+        raise InputError(f"guo: candidates must be >= 1, got {p.candidates}")
+    if not (0 < p.kill_factor <= 1) or not (0 < p.perception_angle <= 180):
+        raise InputError("guo: kill_factor must be in (0, 1] and perception_angle in (0, 180]")
+    if not 0 < p.rho_min <= p.rho_max:
+        raise InputError(f"guo: need 0 < rho_min <= rho_max, got {p.rho_min}, {p.rho_max}")
+    if p.max_iterations < 1 or p.max_nodes < 10:
+        raise InputError("guo: max_iterations must be >= 1 and max_nodes >= 10")
+    return p

@@ -1,0 +1,297 @@
+"""The Guo et al. pipeline (seed 000 section 5, seed 004) as pure functions over a point cloud.
+
+1. ground removal (reference_impl.common.ground; a scan has ground hits, the mvs cloud has none) and removal of
+   isolated points (distance to the 8th neighbour above 4 times the median) [S];
+2. Eq. 8 weights: PCA main direction per point (its eps_D ball), count of neighbours within eps_D whose
+   direction agrees above eps_A (reference_impl.guo.weights);
+3. roots: ground-plane density clusters of the lowest slab, the top k for a k-stem species (Fig. 9); trunk radius
+   from a cross-section circle fit (reference_impl.guo.roots);
+4. markers: the points merged per half-internode voxel with summed weights; for an occluded crown, Poisson-disk
+   samples of the crown's convex hull (Fig. 8, reference_impl.guo.hull);
+5. growth: L-system 1 with space colonisation, logistic influence distance (Eq. 6-7), growth direction Eq. 9, Eq. 5
+   radii and shedding on the fly (reference_impl.guo.growth);
+6. leaves at the nodes of thin branches, placed as the species places them (plantbench.generate.foliage, the
+   generator's own leaf placement and Bezier tessellation) before the skeleton is simplified, then turned about
+   their bases into the cloud around them (the leaf configuration of [40] "considering ... the normal direction";
+   :func:`orient_leaves`);
+7. branch collapse and Hermite smoothing at 20 deg (reference_impl.guo.refine), Eq. 5 radii on the final skeleton;
+8. generalised-cylinder branches (reference_impl.common.geometry.branch_mesh, the generator's tube mesher).
+
+:func:`prepare` does steps 1-4 once (they depend on the cloud and the internode length only), :func:`model` steps
+5-8 for one parameter set, so analysis-by-synthesis (reference_impl.guo.abs) grows many candidates from one
+preparation.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from plantbench.errors import InputError
+from plantbench.plant import Leaf, Skeleton, TriMesh
+from reference_impl.common.geometry import branch_mesh
+from reference_impl.common.graph import depths, median_spacing, tree_levels, voxel_downsample
+from reference_impl.common.ground import Ground, GroundParams, remove_ground
+from reference_impl.common.inputs import MIN_POINTS, check_points
+from reference_impl.common.skeleton_ops import branch_orders
+from reference_impl.guo.growth import allometric_radii, grow, node_levels
+from reference_impl.guo.hull import crown_mask, poisson_disk_in_hull, shell_ratio
+from reference_impl.guo.params import GENERIC_PRIOR, GuoParams, SpeciesPrior
+from reference_impl.guo.refine import collapse, smooth
+from reference_impl.guo.roots import density_roots, root_axes_and_radii
+from reference_impl.guo.weights import eq8_weights
+
+__all__ = ["Prepared", "GuoResult", "prepare", "model", "reconstruct_guo", "generic_leaves", "orient_leaves"]
+
+GENERIC_LEAF_LENGTH = 0.06
+"""Blade length of the generic leaf (no species prior), metres [S: a mid-sized broadleaf]."""
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """Everything computed once from the cloud."""
+
+    plant: np.ndarray
+    """(n, 3) plant points (ground removed)."""
+    ground: Ground
+    height: float
+    """Plant height above the ground, metres."""
+    extent: float
+    """Largest bounding-box side, metres."""
+    markers: np.ndarray
+    """(m, 3) growth markers (merged points, then hull samples)."""
+    weights: np.ndarray
+    """(m,) Eq. 8 weight of each marker (summed over its points; 1 for a hull sample)."""
+    hull_samples: int
+    """How many of the markers are hull samples (the last ones)."""
+    roots: np.ndarray
+    """(k, 3) root positions on the ground."""
+    axes: np.ndarray
+    """(k, 3) stem axes at the roots."""
+    root_radii: np.ndarray
+    """(k,) trunk radii from the cross-section fit."""
+    info: dict
+
+
+@dataclass(frozen=True)
+class GuoResult:
+    skeleton: Skeleton
+    mesh: TriMesh
+    leaves: list[Leaf]
+    info: dict
+
+
+def generic_leaves():
+    """FoliageParams of the generic leaf (the generator's defaults with a :data:`GENERIC_LEAF_LENGTH` blade)."""
+    from plantbench.generate.foliage import FoliageParams
+    from plantbench.generate.leaf import BezierLeaf
+
+    return FoliageParams(shape=BezierLeaf(), length=GENERIC_LEAF_LENGTH)
+
+
+def prepare(points: np.ndarray, rng: np.random.Generator, params: GuoParams = GuoParams(),
+            prior: SpeciesPrior = GENERIC_PRIOR) -> Prepared:
+    """Steps 1-4. points : (n, 3) float (metres, Z up). Raises InputError on too few or degenerate points."""
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    pts = check_points(points)
+    ground = remove_ground(pts, rng, GroundParams())
+    plant = pts[ground.keep]
+    if len(plant) > params.outlier_neighbours + 1:
+        # isolated points (multi-view stereo floaters) would attract branches across empty space
+        d, _ = cKDTree(plant).query(plant, k=params.outlier_neighbours + 1, workers=-1)
+        dk = d[:, -1]
+        plant = plant[dk <= params.outlier_factor * np.median(dk)]
+    if len(plant) < MIN_POINTS:
+        raise InputError(f"only {len(plant)} points above the ground; at least {MIN_POINTS} are needed")
+    hgt = ground.height(plant)
+    height = float(hgt.max())
+    if not height > 0:
+        raise InputError("the cloud has no height above the ground plane")
+    extent = float(np.ptp(plant, axis=0).max())
+    ell = prior.internode_length
+    timings["ground"] = time.perf_counter() - t0
+
+    # Eq. 8
+    t0 = time.perf_counter()
+    tree = cKDTree(plant)
+    spacing = median_spacing(plant)
+    eps_d = max(params.eps_d * extent / 10.0, params.eps_d_min_spacing * spacing)
+    _, w = eq8_weights(plant, eps_d, params.eps_a, max_neighbours=params.weight_neighbours,
+                       min_neighbours=params.pca_min_neighbours, tree=tree)
+    timings["weights"] = time.perf_counter() - t0
+
+    # roots and trunk radii
+    t0 = time.perf_counter()
+    slab = hgt < params.root_slab * height
+    if slab.sum() < 3:
+        slab = hgt <= np.partition(hgt, min(2, len(hgt) - 1))[min(2, len(hgt) - 1)]
+    clusters = density_roots(plant[slab, :2], params.root_cell * ell, k=prior.roots,
+                             min_density=params.root_min_density)
+    gz = ground.coef[0] * clusters.centroids[:, 0] + ground.coef[1] * clusters.centroids[:, 1] + ground.coef[2]
+    roots, axes, radii = root_axes_and_radii(plant, hgt, clusters.centroids, gz, height=height,
+                                             fit_height=params.trunk_fit_height, fallback=max(ell / 2, 2 * spacing))
+    radii = np.maximum(radii, prior.tip_radius)
+    timings["roots"] = time.perf_counter() - t0
+
+    # markers
+    t0 = time.perf_counter()
+    markers, labels, _ = voxel_downsample(plant, params.marker_voxel * ell)
+    mw = np.bincount(labels, weights=w, minlength=len(markers))
+    crown = plant[crown_mask(plant, hgt)]
+    samples = np.zeros((0, 3))
+    ratio = 1.0
+    used = False
+    if params.hull_fill != "off" and len(crown) >= 4:
+        ratio = shell_ratio(crown, rng)
+        used = params.hull_fill == "on" or ratio < params.hull_shell_ratio
+        if used:
+            samples, _ = poisson_disk_in_hull(crown, params.hull_spacing * ell, rng,
+                                              max_samples=params.hull_max_samples)
+    if len(samples):
+        markers = np.concatenate([markers, samples])
+        mw = np.concatenate([mw, np.ones(len(samples))])
+    timings["markers"] = time.perf_counter() - t0
+    info = {
+        "points": len(pts), "plant_points": len(plant), "ground_found": bool(ground.found), "height": height,
+        "eps_d": eps_d, "weight_mean": float(w.mean()), "weight_max": float(w.max()), "roots": len(roots),
+        "root_radii": radii.tolist(), "root_density": clusters.density.tolist(), "markers": len(markers),
+        "hull_samples": len(samples), "hull_shell_ratio": ratio, "hull_fill": used, "timings": timings,
+    }
+    return Prepared(plant, ground, height, extent, markers, mw, len(samples), roots, axes, radii, info)
+
+
+def _leaves(pos, parents, radii, lateral, foliage, rng, tip_internodes: int):
+    """The species' leaves (plantbench.generate.foliage.place_leaves: thin nodes, phyllotaxis, Bezier blades) on
+    the nodes at most ``tip_internodes`` internodes below a tip ("distributed at the tip nodes along branch
+    directions", section 5.3; 0: every thin node, the generator's rule)."""
+    from plantbench.generate.foliage import place_leaves
+    from plantbench.generate.tubes import node_frames
+
+    main = (parents >= 0) & ~lateral
+    tangent, normal, _, _ = node_frames(pos, parents, main)
+    levels = tree_levels(parents)
+    eligible_r = radii
+    if tip_internodes > 0:
+        above = np.zeros(len(parents), np.int64)       # internodes from a node up to its farthest tip
+        for idx in reversed(levels):
+            c = idx[parents[idx] >= 0]
+            np.maximum.at(above, parents[c], above[c] + 1)
+        eligible_r = np.where(above < tip_internodes, radii, np.inf)
+    return place_leaves(pos, parents, eligible_r, main, tangent, normal, levels, foliage, rng)
+
+
+def orient_leaves(foliage, cloud_tree: cKDTree, cloud: np.ndarray, *, min_points: int = 5):
+    """Data-driven leaf configuration: a leaf with cloud points near it moves onto the leaf the cloud saw.
+
+    For each leaf, the cloud point nearest its blade centre (within one leaf length) becomes the new blade centre;
+    the cloud within half a leaf length of that point gives the blade's plane (normal = smallest principal
+    direction) and axis (largest principal direction, pointing away from the twig). The petiole stretches from the
+    twig to the moved blade base. Leaves with no cloud point within one leaf length, or fewer than ``min_points``
+    points around it (occluded parts), keep the species' procedural placement.
+
+    Returns ``(mesh, leaves, moved)``: the new foliage mesh and leaves, and how many leaves moved.
+    """
+    leaves = foliage.leaves
+    m = len(leaves)
+    if m == 0:
+        return foliage.mesh, leaves, 0
+    verts = foliage.mesh.vertices.copy()
+    q = (len(verts) - 6 * m) // m
+    blade = verts[: m * q].reshape(m, q, 3)
+    base = np.array([lf.transform[:3, 3] for lf in leaves])
+    rot = np.array([lf.transform[:3, :3] for lf in leaves])
+    length = np.array([lf.length for lf in leaves])
+    centre = blade.mean(axis=1)
+    dist, near = cloud_tree.query(centre, k=1, workers=-1)
+    snap = cloud[np.minimum(near, len(cloud) - 1)]
+    lists = cloud_tree.query_ball_point(snap, 0.5 * length, workers=-1)
+    cnt = np.fromiter((len(x) for x in lists), np.int64, m)
+    ok = (dist <= length) & (cnt >= min_points)
+    if not ok.any():
+        return foliage.mesh, leaves, 0
+    flat = np.concatenate([np.asarray(x, np.int64) for x, good in zip(lists, ok) if good])
+    owner = np.repeat(np.flatnonzero(ok), cnt[ok])
+    mean = np.zeros((m, 3))
+    np.add.at(mean, owner, cloud[flat])
+    mean[ok] /= cnt[ok, None]
+    d = cloud[flat] - mean[owner]
+    cov = np.zeros((m, 3, 3))
+    np.add.at(cov, owner, d[:, :, None] * d[:, None, :])
+    idx = np.flatnonzero(ok)
+    _, vec = np.linalg.eigh(cov[idx] + 1e-12 * np.eye(3))
+    nz, x = vec[:, :, 0], vec[:, :, 2]
+    nz = np.where(np.sum(nz * rot[idx, :, 2], 1, keepdims=True) < 0, -nz, nz)
+    x = np.where(np.sum(x * (snap[idx] - base[idx]), 1, keepdims=True) < 0, -x, x)
+    new_rot = np.stack([x, np.cross(nz, x), nz], axis=2)
+    # blade vertices in the old leaf frame about the blade centre, re-posed about the snapped point
+    local = np.einsum("kji,kqj->kqi", rot[idx], blade[idx] - centre[idx, None, :])
+    blade[idx] = np.einsum("kij,kqj->kqi", new_rot, local) + snap[idx, None, :]
+    new_base = snap[idx] + np.einsum("kij,kj->ki", new_rot, np.einsum("kji,kj->ki", rot[idx], base[idx] - centre[idx]))
+    verts[: m * q] = blade.reshape(-1, 3)
+    pet = verts[m * q:].reshape(m, 6, 3)
+    pet[idx, 3:] += (new_base - base[idx])[:, None, :]
+    verts[m * q:] = pet.reshape(-1, 3)
+    out = list(leaves)
+    for j, i in enumerate(idx):
+        t = leaves[i].transform.copy()
+        t[:3, :3] = new_rot[j]
+        t[:3, 3] = new_base[j]
+        out[i] = replace(leaves[i], transform=t)
+    return TriMesh(verts, foliage.mesh.faces), out, int(len(idx))
+
+
+def model(prep: Prepared, prior: SpeciesPrior, params: GuoParams, rng: np.random.Generator) -> GuoResult:
+    """Steps 5-8 for one parameter set."""
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    ell = prior.internode_length
+    g = grow(prep.markers, prep.weights, prep.roots, prep.axes, prep.root_radii, prep.height, prior, params)
+    timings["growth"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    foliage = _leaves(g.positions, g.parents, g.radii, g.lateral, prior.leaves or generic_leaves(), rng,
+                      params.leaf_tip_internodes)
+    leaf_mesh, leaves, turned = foliage.mesh, foliage.leaves, 0
+    if params.leaf_fit:
+        leaf_mesh, leaves, turned = orient_leaves(foliage, cKDTree(prep.plant), prep.plant)
+    timings["leaves"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    keep, par = collapse(g.positions, g.parents, g.radii, max_angle_deg=params.collapse_angle,
+                         max_radius_change=params.collapse_radius)
+    pos, par, _ = smooth(g.positions[keep], par, angle_deg=params.smooth_angle, min_spacing=0.25 * ell)
+    levels = node_levels(depths(par))
+    rad = allometric_radii(pos, par, prep.root_radii, prior.diameter_coefficient, levels=levels)
+    rad = np.maximum(rad, 0.5 * prior.tip_radius)
+    skeleton = Skeleton(pos, rad, par, branch_orders(par, rad))
+    timings["refine"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    if leaves:
+        base = np.array([lf.transform[:3, 3] for lf in leaves])
+        _, near = cKDTree(pos).query(base, k=1)
+        leaves = [replace(lf, node=int(j)) for lf, j in zip(leaves, near)]
+    wood = branch_mesh(skeleton, edge_length=0.5 * ell)
+    mesh = TriMesh.concatenate([wood, leaf_mesh])
+    timings["mesh"] = time.perf_counter() - t0
+    info = {
+        "iterations": g.iterations, "growth_nodes": len(g.positions), "shed_nodes": g.shed_nodes,
+        "markers_left": g.markers_left, "nodes": len(pos), "leaves": len(leaves), "leaves_fitted": turned,
+        "internode_length": ell, "roll_angle": prior.roll_angle, "branching_angle": prior.branching_angle,
+        "diameter_coefficient": prior.diameter_coefficient, "timings": timings,
+        "history": g.history,
+    }
+    return GuoResult(skeleton, mesh, leaves, info)
+
+
+def reconstruct_guo(points: np.ndarray, rng: np.random.Generator, params: GuoParams = GuoParams(),
+                    prior: SpeciesPrior = GENERIC_PRIOR) -> GuoResult:
+    """One reconstruction (no analysis-by-synthesis): :func:`prepare` then :func:`model`."""
+    prep = prepare(points, rng, params, prior)
+    res = model(prep, prior, params, rng)
+    return GuoResult(res.skeleton, res.mesh, res.leaves, {"prepare": prep.info} | res.info)
+
