@@ -1,1 +1,62 @@
-"""leaves (not implemented yet)."""
+"""Leaf segmentation from colour + depth and Bezier leaf fitting (seed 001, Chaurasia and Beardsley 2017).
+
+:func:`segment_and_fit` takes a view capture and per-view depth maps to fitted :class:`plantbench.plant.Leaf`
+instances (section 4.1: per-view superpixels, planes, affinity graph and enclosing-ellipse confidence; section 4.2:
+template ICP across views with de-duplication; section 5: Levenberg-Marquardt fit of the 21-parameter Bezier leaf of
+:mod:`plantbench.generate.leaf` with the occlusion weights of Eq. 10-11). :func:`write_leaves` writes the result.
+:class:`Leaves` is the same as a method (``leaves``, inputs ``views``) that can run alone.
+Heavy backends (scikit-image, Open3D, PIL) are imported inside the functions that use them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .ellipse import Ellipse, khachiyan, min_volume_ellipse, min_volume_ellipses
+from .fit import LeafFit, LeafModel, fit_leaf, uv_mapping
+from .params import LeafParams
+from .pipeline import SKIP_REASONS, LeafFitResult, load_depth_dir, segment_and_fit, write_leaves
+
+__all__ = [
+    "Leaves", "LeafParams", "LeafFitResult", "LeafFit", "LeafModel", "Ellipse", "SKIP_REASONS", "segment_and_fit",
+    "write_leaves", "load_depth_dir", "fit_leaf", "uv_mapping", "khachiyan", "min_volume_ellipse",
+    "min_volume_ellipses",
+]
+
+
+class Leaves:
+    """Leaf instances from a view capture (seed 001): writes ``leaves.json``, ``points.ply`` (points on the fitted
+    leaf surfaces, with ``leaf_id``) and ``leaves_stats.json`` (skips per reason, timings).
+
+    Options: ``depth`` = ``"mvs"`` (default: the mvs stage's depth maps, estimated here with its default
+    parameters), ``"oracle"`` (the capture's exact depth: ground truth, for upper bounds) or a folder of per-view
+    maps (``out/depth`` of an ``mvs`` run with ``write_depth``); any :class:`LeafParams` field. The species hint,
+    when given, sets the leaf length (``leaves.length`` of the species) that scales delta_plane.
+    """
+
+    name = "leaves"
+    inputs = "views"
+
+    def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None,
+                    **options) -> None:
+        depth = options.pop("depth", "mvs")
+        params = LeafParams.from_options(options)
+        hint = None
+        if species is not None:
+            from plantbench.species import load_species
+
+            hint = float(load_species(species).leaves.length)
+        views = Path(capture_dir) / "views"
+        if depth == "oracle":
+            result = segment_and_fit(views, oracle_depth=True, leaf_length_hint=hint, seed=seed, params=params)
+        elif depth == "mvs":
+            from reference_impl.mvs import MVSParams, depth_maps, filter_depth_maps, load_views
+
+            images, cameras, _ = load_views(capture_dir)
+            mvs_params = MVSParams()
+            maps, _, _ = depth_maps(images, cameras, mvs_params, seed=seed)
+            depths, _ = filter_depth_maps(maps, images, cameras, mvs_params)
+            result = segment_and_fit(views, depths, leaf_length_hint=hint, seed=seed, params=params)
+        else:
+            result = segment_and_fit(views, depth_dir=depth, leaf_length_hint=hint, seed=seed, params=params)
+        write_leaves(out_dir, result)

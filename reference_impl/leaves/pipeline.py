@@ -1,0 +1,324 @@
+"""From a view capture (colour + per-view depth) to fitted Bezier leaves: seed 001 sections 4.1, 4.2 and 5.
+
+:func:`segment_and_fit` is the entry point; :func:`write_leaves` writes its result as a method output
+(``leaves.json`` and the leaves' points as ``points.ply``).
+
+Depth comes from the caller (``depth_maps``), from a folder of per-view maps (``depth_dir``: the mvs stage's
+``out/depth/NNNN.npz`` with key ``depth``, NaN where rejected, or ``NNNN.npy``), or, as an explicitly named oracle for
+development and upper bounds, from the capture's exact ``views/depth`` (``oracle_depth=True``). The default path
+never reads ground truth.
+
+Documented skips (counted in :attr:`LeafFitResult.skipped`):
+
+- ``view_without_depth``: a view with no depth map or no finite depth;
+- ``superpixel_few_points`` / ``superpixel_no_plane``: superpixels dropped before the graph (section 4.1);
+- ``candidate_few_points``: a candidate leaf with fewer than ``min_candidate_points`` points;
+- ``degenerate_ellipse``: a candidate or extracted leaf whose points are collinear (no enclosing ellipse);
+- ``duplicate``: a candidate already claimed by a leaf extracted from another view (section 4.2);
+- ``few_points_after_icp``: too few unclaimed points near the ICP-placed template;
+- ``fit_failed``: the Bezier fit raised (too few mapped points).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from plantbench.cameras import Camera, read_cameras
+from plantbench.errors import InputError
+from plantbench.generate.leaf import BezierLeaf
+from plantbench.plant import Leaf
+from plantbench.seeding import rng as seeded_rng
+
+from .fit import LeafFit, fit_leaves
+from .params import LeafParams
+from .refine import refine_candidates
+from .segment import Candidate, ViewSegments, backproject, candidate_confidence, segment_view
+
+__all__ = ["LeafFitResult", "segment_and_fit", "write_leaves", "load_depth_dir", "views_folder"]
+
+SKIP_REASONS = ("view_without_depth", "superpixel_few_points", "superpixel_no_plane", "candidate_few_points",
+                "degenerate_ellipse", "duplicate", "few_points_after_icp", "fit_failed")
+
+
+@dataclass
+class LeafFitResult:
+    """Fitted leaves of one capture.
+
+    leaves : plantbench Leaf instances (node -1, ids 0..k-1), transform leaf frame -> world
+    fits : the :class:`reference_impl.leaves.fit.LeafFit` of each leaf (same order)
+    points : (k_i, 3) float, the segmented points of each leaf (same order)
+    skipped : count per reason (:data:`SKIP_REASONS`)
+    stats : views, candidates, delta_plane, leaf length used, template ratio, timings (seconds)
+    """
+
+    leaves: list[Leaf]
+    fits: list[LeafFit]
+    points: list[np.ndarray]
+    skipped: dict[str, int] = field(default_factory=dict)
+    stats: dict = field(default_factory=dict)
+
+
+def views_folder(path: str | os.PathLike) -> Path:
+    """The ``views/`` folder: ``path`` itself when it holds cameras.json, else ``path/views``."""
+    p = Path(path)
+    if (p / "cameras.json").is_file():
+        return p
+    if (p / "views" / "cameras.json").is_file():
+        return p / "views"
+    raise InputError("no cameras.json: not a view capture (expected views/cameras.json)", path=p)
+
+
+def _load_images(views: Path, names: list[str], cameras: list[Camera]) -> list[np.ndarray]:
+    from PIL import Image, UnidentifiedImageError
+
+    images = []
+    for name, cam in zip(names, cameras, strict=True):
+        path = views / "images" / name
+        try:
+            with Image.open(path) as im:
+                img = np.asarray(im.convert("RGB"))
+        except (FileNotFoundError, IsADirectoryError):
+            raise InputError("image listed in cameras.json is missing", path=path) from None
+        except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+            raise InputError(f"unreadable image ({exc})", path=path) from None
+        if img.shape[:2] != (cam.height, cam.width):
+            raise InputError(f"image is {img.shape[1]}x{img.shape[0]}, its camera says {cam.width}x{cam.height}",
+                             path=path)
+        images.append(img)
+    return images
+
+
+def load_depth_dir(depth_dir: str | os.PathLike, names: list[str]) -> list[np.ndarray | None]:
+    """Per-view depth maps from a folder: ``STEM.npz`` (key ``depth``, the mvs stage's output) or ``STEM.npy``;
+    None for a view with neither."""
+    d = Path(depth_dir)
+    if not d.is_dir():
+        raise InputError("depth folder not found", path=d)
+    out: list[np.ndarray | None] = []
+    for name in names:
+        stem = Path(name).stem
+        if (d / f"{stem}.npz").is_file():
+            with np.load(d / f"{stem}.npz") as z:
+                if "depth" not in z:
+                    raise InputError("depth archive has no 'depth' array", path=d / f"{stem}.npz")
+                out.append(np.asarray(z["depth"], np.float64))
+        elif (d / f"{stem}.npy").is_file():
+            out.append(np.asarray(np.load(d / f"{stem}.npy"), np.float64))
+        else:
+            out.append(None)
+    return out
+
+
+def _ground_masks(depths: list[np.ndarray | None], cameras: list[Camera], delta: float, rng: np.random.Generator
+                  ) -> list[np.ndarray | None]:
+    """Per view, the pixels within delta of the ground plane (RANSAC among near-horizontal planes, the mvs stage's
+    :func:`reference_impl.mvs.ground.fit_ground_plane`); None where no ground was found."""
+    from reference_impl.mvs.ground import fit_ground_plane
+
+    clouds = []
+    for d, cam in zip(depths, cameras, strict=True):
+        if d is not None:
+            p, _ = backproject(d, cam)
+            if len(p) > 20_000:
+                p = p[rng.choice(len(p), 20_000, replace=False)]
+            clouds.append(p)
+    if not clouds or sum(len(c) for c in clouds) < 3:
+        return [None] * len(depths)
+    try:
+        plane, inl = fit_ground_plane(np.concatenate(clouds), inlier_dist=0.5 * delta, rng=rng)
+    except InputError:
+        return [None] * len(depths)
+    if inl.mean() < 0.05:  # no dominant horizontal plane: no ground in view
+        return [None] * len(depths)
+    masks: list[np.ndarray | None] = []
+    for d, cam in zip(depths, cameras, strict=True):
+        if d is None:
+            masks.append(None)
+            continue
+        p, flat = backproject(d, cam)
+        m = np.zeros(d.size, bool)
+        m[flat[plane.height(p) < delta]] = True
+        masks.append(m.reshape(d.shape))
+    return masks
+
+
+def _segment_all(images, depths, cameras, *, delta, leaf_length, params, seed, grounds
+                 ) -> tuple[list[ViewSegments], dict]:
+    segs = []
+    skipped = {"superpixel_few_points": 0, "superpixel_no_plane": 0}
+    for i, (img, d, cam) in enumerate(zip(images, depths, cameras, strict=True)):
+        if d is None:
+            segs.append(None)
+            continue
+        s = segment_view(img, d, cam, delta=delta, leaf_length=leaf_length, params=params,
+                         rng=seeded_rng(seed, "leaves", "view", i), exclude=grounds[i])
+        for k, v in s.skipped.items():
+            skipped[k] += v
+        segs.append(s)
+    return segs, skipped
+
+
+def _candidates(segs: list[ViewSegments | None], params: LeafParams
+                ) -> tuple[np.ndarray, list[Candidate], dict]:
+    """Scene points (all views) and the candidates with their confidence."""
+    pts, groups, areas, views = [], [], [], []
+    skipped = {"candidate_few_points": 0, "degenerate_ellipse": 0}
+    offset = 0
+    for v, s in enumerate(segs):
+        if s is None or not len(s.points):
+            continue
+        pts.append(s.points)
+        c = s.candidate
+        sel = np.flatnonzero(c >= 0)
+        order = sel[np.argsort(c[sel], kind="stable")]
+        ids, starts, counts = np.unique(c[order], return_index=True, return_counts=True)
+        area = np.bincount(c[sel], s.area[sel], int(c.max()) + 1 if len(sel) else 0)
+        for cid, st, n in zip(ids, starts, counts, strict=True):
+            if n < params.min_candidate_points:
+                skipped["candidate_few_points"] += 1
+                continue
+            groups.append(order[st: st + n] + offset)
+            areas.append(area[cid])
+            views.append(v)
+        offset += len(s.points)
+    points = np.concatenate(pts) if pts else np.zeros((0, 3))
+    cands = candidate_confidence(points, groups, np.asarray(areas), views)
+    skipped["degenerate_ellipse"] = sum(c is None for c in cands)
+    return points, [c for c in cands if c is not None], skipped
+
+
+def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | None] | None = None, *,
+                    depth_dir: str | os.PathLike | None = None, oracle_depth: bool = False,
+                    leaf_length_hint: float | None = None, seed: int, params: LeafParams = LeafParams(),
+                    up=(0.0, 0.0, 1.0)) -> LeafFitResult:
+    """Segment leaves in a view capture and fit the Bezier leaf to each (seed 001).
+
+    Parameters
+    ----------
+    views_dir : a capture's ``views/`` folder (or the case folder holding it): ``images/`` and ``cameras.json``
+    depth_maps : one (h, w) float z-depth map per camera (inf/NaN: no depth; None: view without depth)
+    depth_dir : or a folder of per-view maps (:func:`load_depth_dir`)
+    oracle_depth : or the capture's exact ``views/depth`` (ground truth: an explicit oracle, never the default)
+    leaf_length_hint : expected leaf length, metres (the species' ``leaves.length``); scales delta_plane and the
+        superpixel size. None: estimated from the data (a first pass at a pixel-footprint guess, then the median
+        major axis of the most confident candidates).
+    seed : root seed of every random draw (RANSAC samples, fit subsamples)
+    params : :class:`LeafParams`
+    up : world up direction (the fitted leaves' upper side faces it)
+    """
+    t_all = time.perf_counter()
+    views = views_folder(views_dir)
+    cameras, names = read_cameras(views / "cameras.json")
+    sources = sum(x is not None and x is not False for x in (depth_maps, depth_dir, oracle_depth or None))
+    if sources != 1:
+        raise InputError("segment_and_fit needs exactly one depth source: depth_maps, depth_dir or oracle_depth=True")
+    if depth_maps is not None:
+        if len(depth_maps) != len(cameras):
+            raise InputError(f"{len(depth_maps)} depth maps for {len(cameras)} cameras")
+        depths = [None if d is None else np.asarray(d, np.float64) for d in depth_maps]
+    else:
+        depths = load_depth_dir(views / "depth" if oracle_depth else depth_dir, names)
+    timings: dict[str, float] = {}
+    skipped = dict.fromkeys(SKIP_REASONS, 0)
+    for i, (d, cam) in enumerate(zip(depths, cameras, strict=True)):
+        if d is not None and d.shape != (cam.height, cam.width):
+            raise InputError(f"depth map {i} is {d.shape[1]}x{d.shape[0]}, its camera says {cam.width}x{cam.height}")
+        if d is None or not np.any(np.isfinite(d) & (d > 0)):
+            depths[i] = None
+            skipped["view_without_depth"] += 1
+    t0 = time.perf_counter()
+    images = _load_images(views, names, cameras)
+    timings["load"] = time.perf_counter() - t0
+    stats: dict = {"views": len(cameras), "views_with_depth": sum(d is not None for d in depths)}
+    if stats["views_with_depth"] == 0:
+        stats["timings"] = timings
+        return LeafFitResult([], [], [], skipped, stats)
+
+    if leaf_length_hint is not None:
+        if not leaf_length_hint > 0:
+            raise InputError(f"leaf_length_hint must be positive, got {leaf_length_hint!r}")
+        length = float(leaf_length_hint)
+    else:  # a leaf ~40 pixels long at the median depth: a first guess, refined below
+        foot = [np.median(d[np.isfinite(d) & (d > 0)]) / cam.K[0, 0] for d, cam in zip(depths, cameras, strict=True)
+                if d is not None]
+        length = 40.0 * float(np.median(foot))
+    t0 = time.perf_counter()
+    grounds = (_ground_masks(depths, cameras, params.scaled_delta(length), seeded_rng(seed, "leaves", "ground"))
+               if params.ground else [None] * len(depths))
+    timings["ground"] = time.perf_counter() - t0
+    for attempt in range(2):
+        delta = params.scaled_delta(length)
+        t0 = time.perf_counter()
+        segs, sk_seg = _segment_all(images, depths, cameras, delta=delta, leaf_length=length, params=params,
+                                    seed=seed, grounds=grounds)
+        timings["segment"] = timings.get("segment", 0.0) + time.perf_counter() - t0
+        t0 = time.perf_counter()
+        points, cands, sk_cand = _candidates(segs, params)
+        timings["candidates"] = timings.get("candidates", 0.0) + time.perf_counter() - t0
+        if leaf_length_hint is not None or attempt == 1 or not cands:
+            break
+        conf = np.array([c.confidence for c in cands])
+        top = np.argsort(-conf, kind="stable")[: params.template_leaves]
+        est = float(np.median([2 * cands[i].semi_axes[0] for i in top]))
+        if abs(est / length - 1.0) <= 0.25:
+            break
+        length = est
+    skipped.update(sk_seg)
+    skipped.update(sk_cand)
+    stats.update({"leaf_length": length, "delta_plane": delta, "candidates": len(cands),
+                  "superpixels": int(sum(s.superpixels for s in segs if s is not None)), "scene_points": len(points)})
+
+    t0 = time.perf_counter()
+    groups, sk_ref, ratio = refine_candidates(points, cands, delta=delta, params=params,
+                                              leaf_length=length if leaf_length_hint is not None else 0.0)
+    timings["refine"] = time.perf_counter() - t0
+    skipped.update(sk_ref)
+    stats["template_ratio"] = ratio
+
+    t0 = time.perf_counter()
+    fits_or_skips = fit_leaves([points[g] for g in groups], params=params, rng=seeded_rng(seed, "leaves", "fit"),
+                               up=up)
+    leaves, fits, leaf_pts = [], [], []
+    for g, f in zip(groups, fits_or_skips, strict=True):
+        if isinstance(f, str):
+            skipped["candidate_few_points" if f == "few_points" else f] += 1
+            continue
+        leaves.append(Leaf(len(leaves), -1, f.transform, BezierLeaf.from_vector(f.omega).to_dict(), f.length, f.width))
+        fits.append(f)
+        leaf_pts.append(points[g])
+    timings["fit"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_all
+    stats["timings"] = timings
+    stats["fit_iterations_median"] = float(np.median([f.iterations for f in fits])) if fits else 0.0
+    return LeafFitResult(leaves, fits, leaf_pts, skipped, stats)
+
+
+def write_leaves(out_dir: str | os.PathLike, result: LeafFitResult, *, samples_per_leaf: int = 153) -> None:
+    """Write ``leaves.json`` and ``points.ply`` (points on each fitted surface, with a ``leaf_id`` field) and
+    ``leaves_stats.json`` (skips and stats) into ``out_dir``."""
+    from plantbench.io.atomic import write_json
+    from plantbench.io.plantio import write_reconstruction
+
+    nv = max(3, int(round(np.sqrt(samples_per_leaf * 2))))
+    nu = max(3, samples_per_leaf // nv)
+    surf = [f.surface(nu, nv) for f in result.fits]
+    pts = np.concatenate(surf) if surf else np.zeros((0, 3))
+    ids = np.repeat(np.arange(len(surf), dtype=np.int32), [len(s) for s in surf]) if surf else np.zeros(0, np.int32)
+    write_reconstruction(out_dir, None, leaves=result.leaves, points=pts, point_fields={"leaf_id": ids})
+    write_json(Path(out_dir) / "leaves_stats.json", {"format": "plantbench.leaves-stats/1", "count": len(result.leaves),
+                                                     "skipped": result.skipped, "stats": _jsonable(result.stats)})
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
