@@ -103,7 +103,8 @@ def filter_depth_maps(
     f = p.filter
     raw = [m.depth for m in maps]
     support, violations = consistency_counts(
-        raw, cameras, views=nearest_views(cameras, f.consistency_views), reproj_px=f.reproj_px, rel_depth=f.rel_depth
+        raw, cameras, views=nearest_views(cameras, f.consistency_views), reproj_px=f.reproj_px, rel_depth=f.rel_depth,
+        search_radius=f.search_radius,
     )
     depths, keeps = [], []
     for d, sup, vio, img in zip(raw, support, violations, images, strict=True):
@@ -182,17 +183,23 @@ def reconstruct_points(capture_dir: str | Path, out_dir: str | Path, params: MVS
     t0 = time.perf_counter()
     pts, nrm, col, _ = fuse_views(depths, normals, images, cameras, keep)
     stats["points_fused"] = len(pts)
-    pts, nrm, col, voxel = voxel_downsample(pts, params.fusion.points, normals=nrm, colours=col)
+    remove_ground = params.depth != "oracle" and params.ground.enabled
+    # the ground covers most of the views: remove it before the final downsampling so that the point budget goes
+    # to the plant (downsampling first to the budget left the plant a few voxels per leaf)
+    budget = params.fusion.points * (params.fusion.pre_ground_factor if remove_ground else 1)
+    pts, nrm, col, voxel = voxel_downsample(pts, budget, normals=nrm, colours=col)
     stats["points_downsampled"] = len(pts)
-    stats["voxel"] = voxel
     timings["fusion"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    if params.depth != "oracle" and params.ground.enabled and len(pts):
+    if remove_ground and len(pts):
         radius = 3.0 * voxel if voxel > 0 else 0.01 * scale
         mask, plane = plant_mask(pts, col, scale=scale, params=params.ground, rng=seeded_rng(seed, "mvs", "ground"),
                                  component_radius=radius)
         stats["ground_plane"] = None if plane is None else {"normal": plane.normal.tolist(), "offset": plane.offset}
         pts, nrm, col = pts[mask], nrm[mask], col[mask]
+        if len(pts):
+            pts, nrm, col, voxel = voxel_downsample(pts, params.fusion.points, normals=nrm, colours=col)
+    stats["voxel"] = voxel
     timings["ground"] = time.perf_counter() - t0
     stats["points"] = len(pts)
     if len(pts) == 0:

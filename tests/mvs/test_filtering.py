@@ -93,3 +93,27 @@ def test_consistency_removes_outliers_keeps_inliers(rng):
     near_out = closer & (noisy < _plane_depth(cams[0]) * 0.9) & centre
     assert np.mean(violations[0][near_out] >= 1) > 0.95
     assert np.mean(violations[0][inl & centre] == 0) > 0.99
+
+
+def test_search_radius_finds_the_surface_next_to_the_projection(rng):
+    """Foliage case: in the other views, every second pixel holds another (far) surface. With the nearest pixel only,
+    about half of the reference pixels lose their support; searching the 3 x 3 pixels around the projection finds
+    the agreeing pixel next to it, while depths 20 % off still find no support."""
+    cams = [look_at((3 * np.cos(a), 3 * np.sin(a), 2.5), (0, 0, 0), fov_x_deg=20, width=64, height=64)
+            for a in np.radians([0, 20, -20])]
+    depths = [_plane_depth(c) for c in cams]
+    checker = (np.add.outer(np.arange(64), np.arange(64)) % 2).astype(bool)
+    for j in (1, 2):
+        depths[j] = np.where(checker, depths[j] * 1.5, depths[j])  # another surface far behind on half the pixels
+    outlier = rng.random((64, 64)) < 0.1
+    depths[0] = np.where(outlier, depths[0] * 0.8, depths[0])
+    views = [[1, 2], [0], [0]]
+    centre = np.zeros((64, 64), bool)
+    centre[16:48, 16:48] = True
+    inl = centre & ~outlier
+    # the pixel next to the projection maps back about one pixel away from the reference pixel: 2 px tolerance
+    sup0, _ = consistency_counts(depths, cams, views=views, reproj_px=2.0, rel_depth=0.01)
+    sup1, _ = consistency_counts(depths, cams, views=views, reproj_px=2.0, rel_depth=0.01, search_radius=1)
+    assert np.mean(sup0[0][inl] == 2) < 0.5
+    assert np.mean(sup1[0][inl] == 2) > 0.99
+    assert np.all(sup1[0][outlier] == 0)
