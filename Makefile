@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 export DRJIT_LIBLLVM_PATH ?= /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
 
-.PHONY: setup sysdeps run test bench lint clean
+.PHONY: setup sysdeps run test bench lint clean baseline
 
 setup: sysdeps $(STAMP)
 
@@ -23,13 +23,21 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	@touch $(STAMP)
 
 run: setup
-	$(BIN)/plantbench run --suite quick
+	$(BIN)/plantbench run --suite quick --out runs --workers 2
 
+# The tests, then the quick suite end to end, gated against the committed baseline (CI runs this).
 test: setup
 	$(BIN)/python -m pytest -q tests
+	$(BIN)/plantbench run --suite quick --out runs --workers 2
+	$(BIN)/plantbench gate runs/quick --baseline reports/baseline.json
 
 bench: setup
 	$(BIN)/python -m pytest -q bench --benchmark-only --benchmark-columns=min,mean,median,rounds
+
+# Re-record the gate baseline from the quick suite (after an intended change in accuracy; commit the result).
+baseline: setup
+	$(BIN)/plantbench run --suite quick --out runs --workers 2
+	$(BIN)/plantbench gate runs/quick --baseline reports/baseline.json --write
 
 lint: setup
 	$(BIN)/ruff check .
