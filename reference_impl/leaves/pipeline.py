@@ -73,26 +73,6 @@ def views_folder(path: str | os.PathLike) -> Path:
     raise InputError("no cameras.json: not a view capture (expected views/cameras.json)", path=p)
 
 
-def _load_images(views: Path, names: list[str], cameras: list[Camera]) -> list[np.ndarray]:
-    from PIL import Image, UnidentifiedImageError
-
-    images = []
-    for name, cam in zip(names, cameras, strict=True):
-        path = views / "images" / name
-        try:
-            with Image.open(path) as im:
-                img = np.asarray(im.convert("RGB"))
-        except (FileNotFoundError, IsADirectoryError):
-            raise InputError("image listed in cameras.json is missing", path=path) from None
-        except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
-            raise InputError(f"unreadable image ({exc})", path=path) from None
-        if img.shape[:2] != (cam.height, cam.width):
-            raise InputError(f"image is {img.shape[1]}x{img.shape[0]}, its camera says {cam.width}x{cam.height}",
-                             path=path)
-        images.append(img)
-    return images
-
-
 def load_depth_dir(depth_dir: str | os.PathLike, names: list[str]) -> list[np.ndarray | None]:
     """Per-view depth maps from a folder: ``STEM.npz`` (key ``depth``, the mvs stage's output) or ``STEM.npy``;
     None for a view with neither."""
@@ -232,7 +212,9 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
             depths[i] = None
             skipped["view_without_depth"] += 1
     t0 = time.perf_counter()
-    images = _load_images(views, names, cameras)
+    from reference_impl.mvs.method import load_images
+
+    images = load_images(views, names, cameras)
     timings["load"] = time.perf_counter() - t0
     stats: dict = {"views": len(cameras), "views_with_depth": sum(d is not None for d in depths)}
     if stats["views_with_depth"] == 0:

@@ -35,8 +35,6 @@ def load_views(capture_dir: str | Path) -> tuple[list[np.ndarray], list[Camera],
     Raises InputError on a missing cameras.json, fewer than 2 views, an unreadable or missing image, or an image
     whose size differs from its camera's.
     """
-    from PIL import Image, UnidentifiedImageError
-
     views = Path(capture_dir) / "views"
     cam_path = views / "cameras.json"
     if not cam_path.is_file():
@@ -44,9 +42,18 @@ def load_views(capture_dir: str | Path) -> tuple[list[np.ndarray], list[Camera],
     cameras, names = read_cameras(cam_path)
     if len(cameras) < 2:
         raise InputError(f"multi-view stereo needs at least 2 views, the capture has {len(cameras)}", path=cam_path)
+    images = load_images(views, names, cameras)
+    return images, cameras, names
+
+
+def load_images(views: Path, names: list[str], cameras: list[Camera]) -> list[np.ndarray]:
+    """RGB uint8 images ``views/images/NAME`` in camera order; InputError naming the file when one is missing,
+    unreadable, or not the size its camera says."""
+    from PIL import Image, UnidentifiedImageError
+
     images = []
     for name, cam in zip(names, cameras, strict=True):
-        path = views / "images" / name
+        path = Path(views) / "images" / name
         try:
             with Image.open(path) as im:
                 img = np.asarray(im.convert("RGB"))
@@ -58,7 +65,7 @@ def load_views(capture_dir: str | Path) -> tuple[list[np.ndarray], list[Camera],
             raise InputError(f"image is {img.shape[1]}x{img.shape[0]}, its camera says {cam.width}x{cam.height}",
                              path=path)
         images.append(img)
-    return images, cameras, names
+    return images
 
 
 def depth_maps(
