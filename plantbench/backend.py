@@ -20,7 +20,8 @@ from pathlib import Path
 
 from plantbench.paths import cache_dir
 
-__all__ = ["LLVM_CANDIDATES", "find_libllvm", "select_variant", "load_mitsuba", "BackendWarning"]
+__all__ = ["LLVM_CANDIDATES", "find_libllvm", "select_variant", "load_mitsuba", "apply_thread_budget",
+           "BackendWarning"]
 
 LLVM_CANDIDATES = (
     "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1",
@@ -110,11 +111,21 @@ def select_variant() -> str:
     return "scalar_rgb"
 
 
+def apply_thread_budget(dr) -> None:
+    """Cap Dr.Jit's (so Mitsuba's) thread pool at ``PLANTBENCH_THREADS`` when the runner set it (several jobs
+    sharing the cores; :func:`plantbench.runner.execute.job_environment`)."""
+    n = os.environ.get("PLANTBENCH_THREADS")
+    if n and n.isdigit() and int(n) > 0 and dr.thread_count() != int(n):
+        dr.set_thread_count(int(n))
+
+
 def load_mitsuba(variant: str | None = None):
     """Import mitsuba with the selected variant set; returns the module."""
     chosen = variant or select_variant()
+    import drjit as dr
     import mitsuba as mi
 
     if mi.variant() != chosen:
         mi.set_variant(chosen)
+    apply_thread_budget(dr)
     return mi

@@ -48,7 +48,7 @@ _add("mesh_to_scan.reverse_D_cm", "cm", False, "mean distance, scan point -> rec
 _add("mesh_to_scan.reverse_sigma_cm", "cm", False, "std of scan point -> reconstructed surface distance")
 _add("mesh_to_scan.area_D_cm", "cm", False, "mean distance, area-uniform sample of the reconstruction -> scan point")
 _add("mesh_to_scan.symmetric_cm", "cm", False, "(area_D + reverse_D) / 2")
-_add("mesh_to_surface.D_cm", "cm", False, "mean exact distance, reconstructed vertex -> ground-truth surface")
+_add("mesh_to_surface.D_cm", "cm", False, "seed 000 D against a perfect scan: mean exact distance, reconstructed vertex -> GT surface")
 _add("mesh_to_surface.sigma_cm", "cm", False, "std of exact vertex -> ground-truth surface distance")
 
 _add("reprojection.error", "", False, "Guenard Eq. 3: |render XOR reference mask| / |reference mask|, mean over views")

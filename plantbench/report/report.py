@@ -21,18 +21,22 @@ from plantbench.report.tables import KEY_METRICS, aggregate, metric_info
 __all__ = ["FORMATS", "wide_table", "render_table", "write_report", "family_ranking", "family_study"]
 
 ORACLES = ("gt",)
-STUDY_METRICS = ("stava.S_T", "mesh_to_scan.D_cm", "reprojection.error", "skeleton.f1@1.0", "leaves.accuracy")
+STUDY_METRICS = ("stava.S_T", "mesh_to_surface.D_cm", "reprojection.error", "skeleton.f1@1.0", "leaves.accuracy")
 
 FORMATS = ("md", "latex", "csv", "html")
 
-# seed 000 Table 3 columns, then ours
+# seed 000 Table 3 columns, then ours. D and sigma are the paper's vertex -> nearest-ground-truth-point distance with
+# the ground truth a perfect scan: the exact distance to the GT surface (mesh_to_surface). The simulated scan of the
+# case misses what its stations cannot see, so against it even the gt oracle scores D > 0 (1.3 cm on the quick
+# suite's 1-station scan); that distance is the "D scan" column.
 PAPER_COLUMNS = (
     ("|P|", "points.count"),
     ("H", "skeleton.height_m"),
     ("|B|", "skeleton.branch_count"),
     ("l_B", "skeleton.mean_branch_length_m"),
-    ("D (cm)", "mesh_to_scan.D_cm"),
-    ("sigma (cm)", "mesh_to_scan.sigma_cm"),
+    ("D (cm)", "mesh_to_surface.D_cm"),
+    ("sigma (cm)", "mesh_to_surface.sigma_cm"),
+    ("D scan (cm)", "mesh_to_scan.D_cm"),
     ("S_T", "stava.S_T"),
     ("reproj. err.", "reprojection.error"),
     ("leaf acc.", "leaves.accuracy"),

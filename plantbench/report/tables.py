@@ -12,8 +12,9 @@ __all__ = ["bootstrap_ci", "aggregate", "summary_table", "KEY_METRICS", "metric_
 # the columns shown first (when present), in this order
 KEY_METRICS = (
     "stava.S_T",
+    "mesh_to_surface.D_cm",
+    "mesh_to_surface.sigma_cm",
     "mesh_to_scan.D_cm",
-    "mesh_to_scan.sigma_cm",
     "reprojection.error",
     "reprojection.iou",
     "leaves.accuracy",

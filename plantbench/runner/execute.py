@@ -9,6 +9,7 @@ leaves every finished job in the cache, so the same command resumes.
 
 from __future__ import annotations
 
+import heapq
 import json
 import os
 import shutil
@@ -19,7 +20,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from dataclasses import asdict
 from pathlib import Path
 
@@ -27,7 +28,7 @@ from plantbench.io.atomic import write_json
 from plantbench.runner.plan import Job, Plan
 from plantbench.runner.worker import job_folder
 
-__all__ = ["execute_job", "execute_plan", "kill_running", "ExecutionStats", "Interrupted"]
+__all__ = ["execute_job", "execute_plan", "job_environment", "kill_running", "ExecutionStats", "Interrupted"]
 
 _RUNNING: dict[int, subprocess.Popen] = {}
 _LOCK = threading.Lock()
@@ -53,10 +54,26 @@ def _kill(proc: subprocess.Popen) -> None:
     proc.wait()
 
 
-def execute_job(cache: str, job: dict) -> dict:
+def job_environment(threads: int | None) -> dict[str, str]:
+    """The environment of a job process: this one's, with every thread pool capped at ``threads`` (None: no cap).
+
+    Several jobs run side by side when there are several workers; a job whose libraries each start one thread per
+    core (BLAS, OpenMP, Dr.Jit/Mitsuba through ``PLANTBENCH_THREADS``, see :mod:`plantbench.backend`) would then
+    oversubscribe the cores."""
+    env = dict(os.environ)
+    if threads is not None:
+        n = str(max(1, int(threads)))
+        for var in ("PLANTBENCH_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                    "NUMEXPR_NUM_THREADS"):
+            env[var] = n
+    return env
+
+
+def execute_job(cache: str, job: dict, threads: int | None = None) -> dict:
     """Run one job (a :class:`Job` as a dict) unless it is cached; return its status record plus 'reused'.
 
-    Safe to call from threads and from Dask workers (it only needs the shared cache folder).
+    Safe to call from threads and from Dask workers (it only needs the shared cache folder). ``threads`` caps the
+    job's thread pools (:func:`job_environment`).
     """
     cache_p = Path(cache)
     kind, key = job["kind"], job["key"]
@@ -84,7 +101,7 @@ def execute_job(cache: str, job: dict) -> dict:
     try:
         with open(tmp / "job.log", "w") as log:
             proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
-                                    stdin=subprocess.DEVNULL)
+                                    stdin=subprocess.DEVNULL, env=job_environment(threads))
             with _LOCK:
                 _RUNNING[proc.pid] = proc
             try:
@@ -130,6 +147,21 @@ class ExecutionStats(dict):
     """Counts per outcome: computed, reused (from the cache), skipped (upstream failed), failed (and per kind)."""
 
 
+def _execute_after(cache: str, job: dict, threads: int | None, *upstream: dict) -> dict:
+    """:func:`execute_job` as a Dask task: ``upstream`` are the records of the jobs it depends on, passed only so
+    that Dask starts it after them (the job reads their status from the cache)."""
+    return execute_job(cache, job, threads)
+
+
+def _local_threads(client) -> int | None:
+    """Thread budget per job on a Dask cluster whose workers all run on this machine (a LocalCluster): the cores
+    shared by its worker threads; None (no cap) for a remote cluster, whose machines this one cannot see."""
+    nthreads = client.nthreads()
+    local = all(addr.startswith(("inproc://", "tcp://127.0.0.1:", "tcp://localhost:")) for addr in nthreads)
+    total = sum(nthreads.values())
+    return max(1, (os.cpu_count() or 1) // total) if local and total else None
+
+
 def execute_plan(
     plan: Plan,
     cache: Path,
@@ -140,11 +172,16 @@ def execute_plan(
     client=None,
     progress: Callable[[int, int, dict], None] | None = None,
 ) -> tuple[dict[str, dict], ExecutionStats]:
-    """Run every job of ``plan`` phase by phase; return {key: status record} and the counts."""
+    """Run every job of ``plan``; return {key: status record} and the counts.
+
+    A job starts as soon as the jobs it depends on have finished (no barrier between stages), the ready job on the
+    longest remaining chain first (:meth:`Plan.priorities`). With several jobs side by side, each job's thread
+    pools share the cores (:func:`job_environment`).
+    """
     cache = Path(cache)
     _STOP.clear()
-    phases = plan.phases()
-    total = sum(len(p) for p in phases)
+    total = len(plan.jobs)
+    priority = plan.priorities()
     results: dict[str, dict] = {}
     stats = ExecutionStats(computed=0, reused=0, skipped=0, failed=0, by_kind={})
     done = 0
@@ -176,21 +213,44 @@ def execute_plan(
         try:
             from dask.distributed import as_completed as dask_completed
 
-            for phase in phases:
-                futures = {client.submit(execute_job, str(cache), asdict(job), key=f"{job.kind}-{job.key}",
-                                         pure=False): job for job in phase}
-                for fut in dask_completed(futures):
-                    record(futures[fut], fut.result())
+            threads = _local_threads(client)
+            futures: dict[str, object] = {}
+            for key, job in plan.jobs.items():  # dependencies first
+                futures[key] = client.submit(_execute_after, str(cache), asdict(job), threads,
+                                             *(futures[d] for d in job.deps), key=f"{job.kind}-{job.key}",
+                                             pure=False, priority=priority[key])
+            jobs_of = {fut.key: plan.jobs[key] for key, fut in futures.items()}
+            for fut in dask_completed(list(futures.values())):
+                record(jobs_of[fut.key], fut.result())
         finally:
             if own_client:
                 client.close()
     elif executor == "local":
-        with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+        workers = max(1, workers)
+        threads = max(1, (os.cpu_count() or 1) // workers) if workers > 1 else None
+        children: dict[str, list[str]] = {k: [] for k in plan.jobs}
+        waiting = {k: set(job.deps) for k, job in plan.jobs.items()}
+        for k, job in plan.jobs.items():
+            for d in job.deps:
+                children[d].append(k)
+        order = {k: i for i, k in enumerate(plan.jobs)}
+        ready = [(-priority[k], order[k], k) for k in plan.jobs if not waiting[k]]
+        heapq.heapify(ready)
+        running: dict = {}
+        with ThreadPoolExecutor(max_workers=workers) as pool:
             try:
-                for phase in phases:
-                    futures = {pool.submit(execute_job, str(cache), asdict(job)): job for job in phase}
-                    for fut in as_completed(futures):
-                        record(futures[fut], fut.result())
+                while ready or running:
+                    while ready and len(running) < workers:
+                        key = heapq.heappop(ready)[2]
+                        running[pool.submit(execute_job, str(cache), asdict(plan.jobs[key]), threads)] = key
+                    finished, _ = wait(running, return_when=FIRST_COMPLETED)
+                    for fut in finished:
+                        key = running.pop(fut)
+                        record(plan.jobs[key], fut.result())
+                        for child in children[key]:
+                            waiting[child].discard(key)
+                            if not waiting[child]:
+                                heapq.heappush(ready, (-priority[child], order[child], child))
             except BaseException:
                 kill_running()
                 pool.shutdown(wait=True, cancel_futures=True)

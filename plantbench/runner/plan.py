@@ -20,7 +20,7 @@ from plantbench.methods.api import ExternalCommand, method_from_spec
 from plantbench.paths import project_root
 from plantbench.suites import Suite, apply_override
 
-__all__ = ["Job", "Cell", "Plan", "make_plan", "content_hash", "code_hash"]
+__all__ = ["Job", "Cell", "Plan", "make_plan", "content_hash", "code_hash", "TYPICAL_SECONDS"]
 
 
 def content_hash(obj: Any) -> str:
@@ -53,6 +53,10 @@ def _method_code_hash(method: Any) -> str:
     # a method in a package folder: hash the whole package (its helpers change its output too)
     return code_hash(str(root.parent if root.is_file() and (root.parent / "__init__.py").exists() else root))
 
+
+TYPICAL_SECONDS = {"plant": 5.0, "capture": 15.0, "points": 1.0, "metrics": 20.0, "method": 10.0,
+                   "mvs": 60.0, "leaves": 60.0, "guo": 30.0, "gt": 1.0}
+"""Rough seconds of a job per kind (and per shipped method) on a quick-suite case: scheduling priorities only."""
 
 _SHARED_CODE = ("plantbench/plant.py", "plantbench/io", "plantbench/cameras.py", "plantbench/skeletons.py")
 
@@ -99,21 +103,20 @@ class Plan:
         self.jobs.setdefault(job.key, job)
         return job.key
 
-    def phases(self) -> list[list[Job]]:
-        """Jobs grouped so that each phase depends only on earlier phases."""
-        level: dict[str, int] = {}
-
-        def depth(key: str) -> int:
-            if key not in level:
-                level[key] = 1 + max((depth(d) for d in self.jobs[key].deps), default=-1)
-            return level[key]
-
-        for k in self.jobs:
-            depth(k)
-        out: list[list[Job]] = [[] for _ in range(max(level.values(), default=-1) + 1)]
+    def priorities(self) -> dict[str, float]:
+        """Job key -> estimated seconds on the longest chain from the job to the end of the run (the job
+        included): the list-scheduling priority (a job on the critical path starts first). The estimates are
+        :data:`TYPICAL_SECONDS`; only their ratios matter."""
+        children: dict[str, list[str]] = {k: [] for k in self.jobs}
         for k, job in self.jobs.items():
-            out[level[k]].append(job)
-        return out
+            for d in job.deps:
+                children[d].append(k)
+        level: dict[str, float] = {}
+        for k in reversed(list(self.jobs)):  # jobs are added after their dependencies: a topological order
+            job = self.jobs[k]
+            cost = TYPICAL_SECONDS.get(job.params.get("method", job.kind), TYPICAL_SECONDS[job.kind])
+            level[k] = cost + max((level[c] for c in children[k]), default=0.0)
+        return level
 
 
 def make_plan(suite: Suite, methods: list[str] | None = None) -> Plan:

@@ -67,7 +67,7 @@ def sweep_depths(near: float, far: float, count: int) -> np.ndarray:
 
 
 def _drjit():
-    from plantbench.backend import find_libllvm
+    from plantbench.backend import apply_thread_budget, find_libllvm
 
     llvm = find_libllvm()
     if llvm:
@@ -75,6 +75,7 @@ def _drjit():
     import drjit as dr
     import drjit.llvm as jl
 
+    apply_thread_budget(dr)
     return dr, jl
 
 
