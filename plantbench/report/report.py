@@ -18,7 +18,8 @@ from plantbench.io.atomic import atomic_write
 from plantbench.report.gate import read_results
 from plantbench.report.tables import KEY_METRICS, aggregate, metric_info
 
-__all__ = ["FORMATS", "wide_table", "render_table", "write_report", "family_ranking", "family_study"]
+__all__ = ["FORMATS", "wide_table", "render_table", "write_report", "family_ranking", "family_study",
+           "distance_figure"]
 
 ORACLES = ("gt",)
 STUDY_METRICS = ("stava.S_T", "mesh_to_surface.D_cm", "reprojection.error", "skeleton.f1@1.0", "leaves.accuracy")
@@ -184,6 +185,9 @@ def write_report(run_dir: str | os.PathLike, formats: tuple[str, ...] = FORMATS,
     out.mkdir(parents=True, exist_ok=True)
     tables = _tables(table)
     figures = _figures(table, out / "figures")
+    distances = distance_figure(run_dir, out / "figures" / "distances.png")
+    if distances is not None:
+        figures.append(distances)
     written = list(figures)
     if "family" in table.columns and table["family"].nunique() > 1:
         path = out / "family_study.md"
@@ -276,16 +280,95 @@ def family_study(table, metrics: tuple[str, ...] = STUDY_METRICS) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _sample_views(run_dir: Path, out: Path, limit: int = 6) -> list[str]:
-    """Copy the first view of a few cases next to the report; returns relative paths."""
-    cache = run_dir.parent / "cache" / "capture"
-    if not cache.is_dir():
+def _cells(run_dir: Path) -> list[dict]:
+    """The run's cells with absolute capture and reconstruction folders (``cells.json``; [] for a run without it or
+    whose cache is gone)."""
+    import json
+
+    try:
+        cells = json.loads((run_dir / "cells.json").read_text())
+    except (OSError, ValueError):
         return []
+    for c in cells:
+        c["capture"], c["recon"] = run_dir / c["capture"], run_dir / c["recon"]
+    return [c for c in cells if c["capture"].is_dir()]
+
+
+def _sample_views(run_dir: Path, out: Path, limit: int = 6) -> list[str]:
+    """Copy the first view of a few of the run's cases next to the report; returns relative paths."""
     rels = []
-    for case in sorted(cache.iterdir())[:limit]:
-        img = case / "views" / "images" / "0000.png"
+    cases = {c["case"]: c["capture"] for c in _cells(run_dir)}
+    for case, folder in list(cases.items())[:limit]:
+        img = folder / "views" / "images" / "0000.png"
         if img.exists():
-            dst = out / "figures" / f"view_{case.name[:8]}.png"
+            dst = out / "figures" / f"view_{case}.png"
             shutil.copyfile(img, dst)
             rels.append(f"figures/{dst.name}")
     return rels
+
+
+def distance_figure(run_dir: str | os.PathLike, path: str | os.PathLike, *, max_cases: int = 4,
+                    max_points: int = 20_000, seed: int = 0) -> Path | None:
+    """Reconstructions coloured by their distance to the ground-truth surface: one row per case (the first case of
+    up to ``max_cases`` species), one column per method, each panel a side view (x, z) of up to ``max_points``
+    mesh vertices with the exact vertex -> GT surface distance as colour, 0 to 2 % of the plant height (the
+    largest Tanks and Temples tau). Returns the PNG written, or None when the run has no drawable cell."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from plantbench.io.plantio import read_plant, read_reconstruction
+    from plantbench.metrics.surface import point_to_mesh_distances
+    from plantbench.plant import TriMesh
+
+    cells = [c for c in _cells(Path(run_dir)) if c["status"] == "ok" and (c["capture"] / "plant").is_dir()]
+    cases = list(dict.fromkeys(c["case"] for c in cells if c["sweep"] is None or c["sweep"] == cells[0]["sweep"]))
+    by_species: dict[str, str] = {}
+    for c in cells:
+        if c["case"] in cases:
+            by_species.setdefault(c["species"], c["case"])
+    rows = list(by_species.values())[:max_cases]
+    methods = sorted({c["method"] for c in cells if c["case"] in rows})
+    if not rows or not methods:
+        return None
+    fig, axes = plt.subplots(len(rows), len(methods) + 1, figsize=(2.4 * (len(methods) + 1) + 1.0, 3.0 * len(rows)),
+                             squeeze=False, layout="constrained")
+    rng = np.random.Generator(np.random.PCG64(seed))
+    sc = None
+    for i, case in enumerate(rows):
+        row = {c["method"]: c for c in cells if c["case"] == case}
+        plant = read_plant(next(iter(row.values()))["capture"])[0]
+        gt = TriMesh.concatenate([plant.branch_mesh, plant.leaf_mesh])
+        scale = 0.02 * plant.height
+        v = gt.vertices[rng.permutation(len(gt.vertices))[:max_points]]
+        axes[i][0].scatter(v[:, 0], v[:, 2], s=0.2, c="0.35", linewidths=0)
+        axes[i][0].set_title(f"{case}: ground truth", fontsize=8)
+        for j, method in enumerate(methods, start=1):
+            ax = axes[i][j]
+            ax.set_title(method, fontsize=8)
+            cell = row.get(method)
+            mesh = read_reconstruction(cell["recon"]).mesh if cell else None
+            if mesh is None or len(mesh.vertices) == 0:
+                ax.text(0.5, 0.5, "no mesh", ha="center", transform=ax.transAxes, fontsize=8)
+                continue
+            p = mesh.vertices[rng.permutation(len(mesh.vertices))[:max_points]]
+            d = point_to_mesh_distances(gt, p) / scale
+            order = np.argsort(d)  # far points drawn last, on top
+            sc = ax.scatter(p[order, 0], p[order, 2], s=0.2, c=d[order], cmap="viridis", vmin=0.0, vmax=1.0,
+                            linewidths=0)
+        for ax in axes[i]:
+            ax.set_aspect("equal")
+            ax.set_xlim(axes[i][0].get_xlim())
+            ax.set_ylim(axes[i][0].get_ylim())
+            ax.set_xticks([])
+            ax.set_yticks([])
+    if sc is not None:
+        bar = fig.colorbar(sc, ax=axes, shrink=0.6, ticks=[0, 0.25, 0.5, 0.75, 1.0])
+        bar.ax.set_yticklabels(["0", "0.5", "1", "1.5", ">= 2"])
+        bar.set_label("vertex -> GT surface distance (% of plant height)", fontsize=8)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,7 +1,8 @@
 """``plantbench run``: plan a suite, execute it, write the tidy results table and the run metadata.
 
 Run folder layout (``OUT/SUITE/``): ``results.parquet``, ``results.csv`` (case, species, family, seed, method,
-sweep, metric, value, status), ``run.json`` (versions, git SHA, config hash, Mitsuba variant, counts) and
+sweep, metric, value, status), ``run.json`` (versions, git SHA, config hash, Mitsuba variant, counts),
+``cells.json`` (per cell: the capture and reconstruction folders in the cache, relative to the run folder) and
 ``logs/`` (a link to the log of every failed cell). The content-addressed job cache is shared by all suites
 under ``OUT/cache/``.
 """
@@ -145,6 +146,15 @@ def run_suite(
             if link.is_symlink() or link.exists():
                 link.unlink()
             link.symlink_to(os.path.relpath(log, logs))
+    # where each cell's inputs and outputs are (relative to the run folder): the report draws from them
+    write_json(run_dir / "cells.json", [
+        {"case": c.case, "species": c.species, "family": c.family, "method": c.method,
+         "sweep": None if c.sweep_value is None else str(c.sweep_value),
+         "capture": os.path.relpath(job_folder(cache, "capture", c.case_key), run_dir),
+         "recon": os.path.relpath(job_folder(cache, "method", c.recon_key), run_dir),
+         "status": records[c.recon_key]["status"] if records[c.recon_key]["status"] != "ok"
+         else records[c.metrics_key]["status"]}
+        for c in plan.cells])
     table = pd.DataFrame(rows, columns=RESULT_COLUMNS)
     table["value"] = table["value"].astype(float)
     with atomic_write(run_dir / "results.parquet") as fh:

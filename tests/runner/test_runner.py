@@ -41,6 +41,16 @@ def test_failures_become_cells_and_rerun_reuses_everything(tmp_path, scripts):
     meta = json.loads((res.run_dir / "run.json").read_text())
     for key in ("plantbench_version", "git_sha", "config_hash", "packages", "mitsuba_variant"):
         assert key in meta
+    # cells.json points at each cell's capture and reconstruction; the report draws gt from them
+    cells = json.loads((res.run_dir / "cells.json").read_text())
+    assert sorted(c["method"] for c in cells) == sorted(methods)
+    gt_cell = next(c for c in cells if c["method"] == "gt")
+    assert gt_cell["status"] == "ok" and (res.run_dir / gt_cell["recon"] / "skeleton.ply").is_file()
+    assert (res.run_dir / gt_cell["capture"] / "plant" / "plant.json").is_file()
+    from plantbench.report.report import distance_figure
+
+    png = distance_figure(res.run_dir, tmp_path / "distances.png")
+    assert png is not None and png.stat().st_size > 1000
     # a second run recomputes nothing
     again = run_suite(suite, tmp_path / "runs", workers=2)
     assert again.stats["computed"] == 0 and again.stats["reused"] == res.stats["computed"] + res.stats["reused"]
