@@ -170,3 +170,15 @@ def test_branch_angle_moves_towards_murray():
     new_angle = np.degrees(np.arccos(np.clip((npos[3] - npos[s])[2] / np.linalg.norm(npos[3] - npos[s]), -1, 1)))
     assert abs(new_angle - pred) < abs(np.degrees(0.35) - pred)
     assert np.isclose(npos[s][0], 0) and 1.0 < npos[s][2] <= 1.5  # the split moved up along the main axis
+
+
+def test_stub_root_trees_are_dropped_but_real_stems_stay():
+    """Three roots: a 1 m stem, a 0.5 m second stem and a 2 cm stub (a fragment of a stem base): with a 5 cm spur
+    length only the stub's two nodes go."""
+    from reference_impl.xu.pipeline import _stub_root_trees
+
+    pos = np.array([[0, 0, 0], [0, 0, 1.0], [0.3, 0, 0], [0.3, 0, 0.5], [0.02, 0, 0], [0.02, 0, 0.02]], float)
+    par = np.array([-1, 0, -1, 2, -1, 4])
+    assert _stub_root_trees(pos, par, 0.05).tolist() == [True, True, True, True, False, False]
+    # a lone short tree is never dropped
+    assert _stub_root_trees(pos[4:], np.array([-1, 0]), 0.05).all()
