@@ -20,6 +20,8 @@ from reference_impl.common.graph import (
     children_csr,
     median_spacing,
     radius_graph,
+    subtree_lengths,
+    tree_levels,
     voxel_downsample,
 )
 from reference_impl.common.ground import GroundParams, remove_ground
@@ -57,8 +59,8 @@ class XuParams:
     """Geodesic bin width in neighbourhoods (the paper gives no value; one neighbourhood makes each bin one graph
     hop deep, like Brostow et al.'s level sets) [S]."""
     spur_bins: float = 2.0
-    """Main-skeleton terminal chains shorter than this many bins that hang from a junction are bin noise; their
-    points become leaf points [S: the notes' clean-up step]."""
+    """Main-skeleton terminal chains shorter than this many bins that hang from a junction, and extra root trees
+    shorter than that in all, are bin noise; their points become leaf points [S: the notes' clean-up step]."""
     root_slab_fraction: float = 0.02
     """Stem bases searched in the lowest 2 % of the height; one root per stem (the paper's user picks the root; a
     multi-stem shrub has one per stem) [S]."""
@@ -167,6 +169,23 @@ def adjust_branch_angles(positions: np.ndarray, parents: np.ndarray, radii: np.n
     return np.asarray(pos), np.asarray(par, np.int64), np.asarray(rad), adjusted
 
 
+def _stub_root_trees(positions: np.ndarray, parents: np.ndarray, min_length: float) -> np.ndarray:
+    """(n,) keep mask without the trees (root and descendants) of total edge length below ``min_length``; the
+    longest tree is always kept [S]."""
+    w = subtree_lengths(positions, parents)
+    roots = np.flatnonzero(parents < 0)
+    keep = np.ones(len(parents), bool)
+    if len(roots) < 2:
+        return keep
+    drop = np.zeros(len(parents), bool)
+    stub = roots[(w[roots] < min_length) & (roots != roots[np.argmax(w[roots])])]
+    drop[stub] = True
+    for idx in tree_levels(parents):
+        c = idx[parents[idx] >= 0]
+        drop[c] |= drop[parents[c]]
+    return keep & ~drop
+
+
 def _main_components(labels: np.ndarray, roots: np.ndarray) -> np.ndarray:
     return np.isin(labels, np.unique(labels[roots]))
 
@@ -212,6 +231,9 @@ def reconstruct_xu(points: np.ndarray, rng: np.random.Generator, params: XuParam
     info["joined_subgraphs"] = joined
     # clean-up [S]: bin-noise spurs go; their points count as leaf points with the unattached ones
     keep = prune_short_tips(ext.positions, ext.parents, params.spur_bins * width)
+    # ... and so do whole trees shorter than the spur length hanging from extra roots: a stem base scanned from
+    # several sides splits into radius-graph components, each found as a stem base (the longest tree always stays)
+    keep &= _stub_root_trees(ext.positions, ext.parents, params.spur_bins * width)
     new_par, index = remove_nodes(ext.parents, keep)
     pos = ext.positions[keep]
     par = new_par

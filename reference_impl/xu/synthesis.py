@@ -12,7 +12,7 @@ from reference_impl.common.graph import children_csr, tree_levels
 from reference_impl.common.skeleton_ops import unit
 
 __all__ = ["leaf_locations", "node_directions", "axil_angles", "support", "triangle_table", "triangle_angles",
-           "similarity_transform", "synthesize", "prune_bare_twigs", "SynthesisResult"]
+           "similarity_transform", "section_nodes", "synthesize", "prune_bare_twigs", "SynthesisResult"]
 
 
 def leaf_locations(points: np.ndarray, cell: float, density_range: float) -> tuple[np.ndarray, np.ndarray]:
@@ -204,6 +204,34 @@ def _path_up(parents: np.ndarray, start: int, stop: int) -> list[int]:
     return out
 
 
+def section_nodes(positions: np.ndarray, parents: np.ndarray, o: int, a: int, b: int, ptr: np.ndarray,
+                  kids: np.ndarray, max_copy: int = 200) -> np.ndarray:
+    """Sorted nodes of the section defined by the triangle O'A'B' (section 4.3: the structure copied onto OAB): the
+    paths from A' and from B' up to O' (O' excluded) plus the parts of the subtrees hanging from the path nodes that
+    lie inside the ball around O' reaching A' and B' (beyond it they are another part of the tree, which the scale of
+    the copy would carry away from the leaves it is meant to support) [S: the paper's "section defined by O', A'
+    and B'"]. Only the paths when the section exceeds ``max_copy`` nodes. ptr, kids : children_csr(parents)."""
+    path_a, path_b = _path_up(parents, a, o), _path_up(parents, b, o)
+    section = set(path_a) | set(path_b)
+    full = set(section)
+    reach = max(np.linalg.norm(positions[a] - positions[o]), np.linalg.norm(positions[b] - positions[o])) * (1 + 1e-9)
+    for v in list(section):  # subtrees hanging from the path nodes (not beyond A', B')
+        if v in (a, b):
+            continue
+        stack = [int(c) for c in kids[ptr[v]:ptr[v + 1]] if int(c) not in section] if v < len(ptr) - 1 else []
+        for _ in range(max_copy):
+            if not stack or len(full) > max_copy:
+                break
+            u = stack.pop()
+            if np.linalg.norm(positions[u] - positions[o]) > reach:
+                continue
+            full.add(u)
+            stack.extend(int(c) for c in kids[ptr[u]:ptr[u + 1]])
+    if len(full) > max_copy:
+        full = section
+    return np.asarray(sorted(full), np.int64)
+
+
 @dataclass
 class SynthesisResult:
     positions: np.ndarray
@@ -221,7 +249,8 @@ def synthesize(positions: np.ndarray, parents: np.ndarray, locations: np.ndarray
     nearest feasible node, and at each node O with associations picks A (highest density) and B (highest density
     among the far half, farther than ``group`` from A), finds the most similar skeleton triangle O'A'B' (Eq. 6,
     KD-tree over angle triples; ties within 1 degree go to the triangle with more nodes), and copies the section
-    spanned by O'A'B' (both paths and the subtrees hanging from them, or only the paths beyond ``max_copy`` nodes)
+    spanned by O'A'B' (both paths and the parts of the subtrees hanging from them that lie within the ball around O'
+    reaching A' and B', or only the paths beyond ``max_copy`` nodes)
     with the similarity transform mapping O'A'B' onto OAB, hung from O. A node with a single associated location
     gets a straight twig to it [S]. The table holds the scanned skeleton's triangles (computed once, as the paper
     pre-calculates them). Stops early when everything is supported or at ``max_nodes`` [S: memory bound].
@@ -266,23 +295,7 @@ def synthesize(positions: np.ndarray, parents: np.ndarray, locations: np.ndarray
             close = ii[dd <= dd[0] + 1.0]
             t = int(close[np.argmax(table.detail[close])])
             o2, a2, b2 = int(table.o[t]), int(table.a[t]), int(table.b[t])
-            path_a, path_b = _path_up(par, a2, o2), _path_up(par, b2, o2)
-            section = set(path_a) | set(path_b)
-            full = set(section)
-            for v in list(section):  # subtrees hanging from the path nodes (not beyond A', B')
-                if v in (a2, b2):
-                    continue
-                stack = [int(c) for c in kids0[ptr0[v]:ptr0[v + 1]] if int(c) not in section] if v < len(ptr0) - 1 \
-                    else []
-                for _ in range(max_copy):
-                    if not stack or len(full) > max_copy:
-                        break
-                    u = stack.pop()
-                    full.add(u)
-                    stack.extend(int(c) for c in kids0[ptr0[u]:ptr0[u + 1]])
-            if len(full) > max_copy:
-                full = section
-            nodes = np.asarray(sorted(full), np.int64)
+            nodes = section_nodes(pos, par, o2, a2, b2, ptr0, kids0, max_copy)
             s, rot, tr = similarity_transform(pos[[o2, a2, b2]], np.stack([po, pa, pb]))
             mapped = (s * (rot @ pos[nodes].T)).T + tr
             remap = {int(v): base + len(new_pos) + i for i, v in enumerate(nodes)}

@@ -124,3 +124,18 @@ def test_tiny_but_valid_cloud_gives_a_skeleton(rng):
     for fn in METHODS.values():
         sk = fn(pts, rng).skeleton
         assert len(sk) >= 2 and sk.is_forest() and len(sk.roots) == 1
+
+
+def test_livny_voxel_follows_the_height_and_the_vertex_cap(plant):
+    """The voxel is 0.75 % of the measured height above the ground (not of the crown-width-dependent diagonal), and
+    grows until the downsampled cloud fits ``max_vertices`` (checked by counting occupied cells independently)."""
+    from reference_impl.livny import LivnyParams
+
+    _, pts = plant
+    res = reconstruct_livny(pts, np.random.Generator(np.random.PCG64(1)))
+    assert res.info["voxel"] == pytest.approx(0.0075 * res.info["height"], rel=1e-9)
+    capped = reconstruct_livny(pts, np.random.Generator(np.random.PCG64(1)), LivnyParams(max_vertices=2000))
+    assert capped.info["voxel"] > res.info["voxel"] and capped.info["vertices"] <= 2000
+    above = pts[pts[:, 2] > 0.01]  # the plant without its ground disc
+    cells = np.unique(np.floor((above - above.min(0)) / capped.info["voxel"]).astype(np.int64), axis=0)
+    assert abs(len(cells) - capped.info["vertices"]) <= 0.1 * capped.info["vertices"]  # origin offset only

@@ -3,7 +3,7 @@
 import numpy as np
 from scipy.sparse import csgraph
 
-from reference_impl.common.graph import radius_graph
+from reference_impl.common.graph import children_csr, radius_graph
 from reference_impl.common.radii import murray_angle
 from reference_impl.xu.pipeline import adjust_branch_angles
 from reference_impl.xu.skeleton import bin_skeleton, probe_extend
@@ -11,6 +11,7 @@ from reference_impl.xu.synthesis import (
     axil_angles,
     leaf_locations,
     prune_bare_twigs,
+    section_nodes,
     similarity_transform,
     support,
     synthesize,
@@ -116,6 +117,33 @@ def test_synthesis_supports_unsupported_leaves():
     assert np.nanmin(np.where(np.isfinite(d1), d1, np.nan)) < np.nanmin(np.where(np.isfinite(d0_), d0_, 10.0))
 
 
+def test_copied_section_stays_inside_the_triangle_ball():
+    """Section 4.3: the copied structure is the section defined by O'A'B'. A long side branch hanging from the path
+    O' -> A' leaves that section: only its nodes within max(|O'A'|, |O'B'|) of O' are copied (checked against a
+    brute-force walk of the subtrees)."""
+    pos = [[0, 0, 0], [0, 0, 0.5], [0, 0, 1.0], [-0.15, 0, 1.2], [-0.3, 0, 1.4], [0.3, 0, 1.4]]
+    par = [-1, 0, 1, 2, 3, 2]
+    prev = 3
+    for i in range(1, 6):  # side branch from M = node 3, out to x = -1.5
+        pos.append([-0.15 - 0.27 * i, 0.0, 1.2 - 0.02 * i])
+        par.append(prev)
+        prev = len(pos) - 1
+    pos, par = np.asarray(pos, float), np.asarray(par)
+    ptr, kids = children_csr(par)
+    got = section_nodes(pos, par, 2, 4, 5, ptr, kids)
+    reach = max(np.linalg.norm(pos[4] - pos[2]), np.linalg.norm(pos[5] - pos[2]))
+    # independent: the paths {3, 4} and {5}, plus side-branch nodes whose whole chain from M stays within reach
+    side = list(range(6, 11))
+    inside = []
+    for v in side:
+        if np.linalg.norm(pos[v] - pos[2]) > reach:
+            break
+        inside.append(v)
+    assert got.tolist() == sorted([3, 4, 5] + inside)
+    assert inside == [6]  # the test means something: the branch is cut after its first node
+    assert np.all(np.linalg.norm(pos[got] - pos[2], axis=1) <= reach + 1e-12)
+
+
 def test_prune_bare_twigs_keeps_a_quarter(rng):
     # 200 synthetic single-node twigs on a stem, none supporting a leaf
     n = 200
@@ -142,3 +170,15 @@ def test_branch_angle_moves_towards_murray():
     new_angle = np.degrees(np.arccos(np.clip((npos[3] - npos[s])[2] / np.linalg.norm(npos[3] - npos[s]), -1, 1)))
     assert abs(new_angle - pred) < abs(np.degrees(0.35) - pred)
     assert np.isclose(npos[s][0], 0) and 1.0 < npos[s][2] <= 1.5  # the split moved up along the main axis
+
+
+def test_stub_root_trees_are_dropped_but_real_stems_stay():
+    """Three roots: a 1 m stem, a 0.5 m second stem and a 2 cm stub (a fragment of a stem base): with a 5 cm spur
+    length only the stub's two nodes go."""
+    from reference_impl.xu.pipeline import _stub_root_trees
+
+    pos = np.array([[0, 0, 0], [0, 0, 1.0], [0.3, 0, 0], [0.3, 0, 0.5], [0.02, 0, 0], [0.02, 0, 0.02]], float)
+    par = np.array([-1, 0, -1, 2, -1, 4])
+    assert _stub_root_trees(pos, par, 0.05).tolist() == [True, True, True, True, False, False]
+    # a lone short tree is never dropped
+    assert _stub_root_trees(pos[4:], np.array([-1, 0]), 0.05).all()
