@@ -8,8 +8,10 @@ and editing a stage's code invalidates exactly the stages downstream of it.
 
 from __future__ import annotations
 
+import ast
 import functools
 import hashlib
+import importlib.util
 import inspect
 import json
 from dataclasses import dataclass, field
@@ -31,15 +33,76 @@ def content_hash(obj: Any) -> str:
 
 @functools.cache
 def code_hash(*paths: str) -> str:
-    """Hash of the Python sources under ``paths`` (files or folders, relative to the project root or absolute)."""
+    """Hash of the Python sources under ``paths`` (files or folders, relative to the project root or absolute) and
+    of every module of the same packages or of plantbench that they import, directly or not (``import`` statements
+    anywhere in a file, function-level ones included), so that editing a shared helper invalidates every stage that
+    uses it."""
+    roots = [Path(p) if Path(p).is_absolute() else project_root() / p for p in paths]
+    start = [f for r in roots for f in (sorted(r.rglob("*.py")) if r.is_dir() else [r] if r.exists() else [])]
+    follow = {"plantbench"} | {_module_name(f).split(".")[0] for f in start}
     h = hashlib.sha256()
-    for p in paths:
-        path = Path(p) if Path(p).is_absolute() else project_root() / p
-        files = sorted(path.rglob("*.py")) if path.is_dir() else [path] if path.exists() else []
-        for f in files:
-            h.update(str(f.relative_to(path.parent)).encode())
-            h.update(f.read_bytes())
+    for f in sorted(_import_closure(tuple(start), frozenset(follow)), key=_module_name):
+        h.update(_module_name(f).encode())
+        h.update(f.read_bytes())
     return h.hexdigest()[:16]
+
+
+def _module_name(file: Path) -> str:
+    """Dotted module name of a source file, from the chain of packages (folders with __init__.py) holding it."""
+    parts = [] if file.name == "__init__.py" else [file.stem]
+    folder = file.parent
+    while (folder / "__init__.py").exists():
+        parts.insert(0, folder.name)
+        folder = folder.parent
+    return ".".join(parts)
+
+
+def _module_file(name: str) -> Path | None:
+    try:
+        spec = importlib.util.find_spec(name)
+    except (ImportError, AttributeError, ValueError):
+        return None
+    return Path(spec.origin) if spec is not None and spec.origin and spec.origin.endswith(".py") else None
+
+
+def _imported_names(file: Path) -> set[str]:
+    """Modules a source file imports (absolute names; ``from a import b`` also yields ``a.b``, which may be a
+    submodule)."""
+    module = _module_name(file)
+    package = module if file.name == "__init__.py" else module.rpartition(".")[0]
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(file.read_bytes(), filename=str(file))):
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                up = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(up + ([node.module] if node.module else []))
+            names.add(base)
+            names.update(f"{base}.{a.name}" for a in node.names)
+    return names
+
+
+def _import_closure(start: tuple[Path, ...], follow: frozenset[str]) -> set[Path]:
+    """The files in ``start`` and every module of the ``follow`` packages they import, transitively (each package's
+    __init__.py on the way included, as Python runs it)."""
+    seen: set[Path] = set()
+    todo = [f.resolve() for f in start]
+    while todo:
+        f = todo.pop()
+        if f in seen:
+            continue
+        seen.add(f)
+        for name in _imported_names(f):
+            parts = name.split(".")
+            if parts[0] not in follow:
+                continue
+            for i in range(1, len(parts) + 1):  # importing a.b.c runs a/__init__.py and a/b/__init__.py too
+                dep = _module_file(".".join(parts[:i]))
+                if dep is not None and dep.resolve() not in seen:
+                    todo.append(dep.resolve())
+    return seen
 
 
 def _method_code_hash(method: Any) -> str:
@@ -49,17 +112,14 @@ def _method_code_hash(method: Any) -> str:
     src = Path(inspect.getfile(module)) if module else None
     if src is None:
         return "unknown"
+    # the method's whole package and everything it imports from its own project and from plantbench
     root = src.parent if src.name == "__init__.py" else src
-    # a method in a package folder: hash the whole package (its helpers change its output too)
     return code_hash(str(root.parent if root.is_file() and (root.parent / "__init__.py").exists() else root))
 
 
 TYPICAL_SECONDS = {"plant": 5.0, "capture": 15.0, "points": 1.0, "metrics": 20.0, "method": 10.0,
                    "mvs": 60.0, "leaves": 60.0, "guo": 30.0, "gt": 1.0}
 """Rough seconds of a job per kind (and per shipped method) on a quick-suite case: scheduling priorities only."""
-
-_SHARED_CODE = ("plantbench/plant.py", "plantbench/io", "plantbench/cameras.py", "plantbench/skeletons.py")
-
 
 @dataclass(frozen=True)
 class Job:
@@ -130,9 +190,9 @@ def make_plan(suite: Suite, methods: list[str] | None = None) -> Plan:
         variants = [(v, apply_override(suite, suite.sweep.parameter, v)) for v in suite.sweep.values]
     plan = Plan(suite)
     version_code = {
-        "plant": code_hash("plantbench/generate", *_SHARED_CODE),
-        "capture": code_hash("plantbench/capture", *_SHARED_CODE),
-        "metrics": code_hash("plantbench/metrics", *_SHARED_CODE),
+        "plant": code_hash("plantbench/generate"),
+        "capture": code_hash("plantbench/capture"),
+        "metrics": code_hash("plantbench/metrics"),
         "runner": code_hash("plantbench/runner/worker.py"),
     }
     for sweep_value, s in variants:
