@@ -64,7 +64,10 @@ def test_sigint_then_resume_recomputes_nothing_finished(tmp_path, scripts):
     toml = suite_toml(tmp_path / "resume.toml", [scripts["slow_ok"]], seeds=(1, 2, 3, 4), timeout_s=120)
     out = tmp_path / "runs"
     cmd = [sys.executable, "-m", "plantbench.cli", "run", "--suite", str(toml), "--out", str(out)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    # a shell that starts the tests in the background (`make test &`) leaves SIGINT ignored, and Python then never
+    # raises KeyboardInterrupt: give the run the default disposition, as an interactive terminal would
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     method_dir = out / "cache" / "method"
     deadline = time.time() + 240
     # interrupt once at least one method cell (1.5 s each) has finished but not all four
