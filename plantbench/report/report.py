@@ -139,10 +139,15 @@ def _figures(table, folder: Path) -> list[Path]:
     folder.mkdir(parents=True, exist_ok=True)
     paths = []
     agg = aggregate(table)
-    metrics = [m for m in KEY_METRICS if m in set(agg["metric"])]
+    # key metrics with at least one finite mean, in rows of at most five panels
+    metrics = [m for m in KEY_METRICS if np.isfinite(agg.loc[agg["metric"] == m, "mean"]).any()]
     if metrics:
-        fig, axes = plt.subplots(1, len(metrics), figsize=(3.2 * len(metrics), 3.2), squeeze=False)
-        for ax, m in zip(axes[0], metrics):
+        ncol = min(5, len(metrics))
+        nrow = -(-len(metrics) // ncol)
+        fig, axes = plt.subplots(nrow, ncol, figsize=(3.2 * ncol, 3.2 * nrow), squeeze=False)
+        for ax in axes.ravel()[len(metrics):]:
+            ax.axis("off")
+        for ax, m in zip(axes.ravel(), metrics):
             g = agg[agg["metric"] == m].sort_values("method")
             err = np.abs(np.stack([g["mean"] - g["lo"], g["hi"] - g["mean"]]))
             ax.bar(g["method"], g["mean"], yerr=np.nan_to_num(err), capsize=3, color="#5a8f4e")
