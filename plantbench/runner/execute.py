@@ -228,11 +228,8 @@ def execute_plan(
     elif executor == "local":
         workers = max(1, workers)
         threads = max(1, (os.cpu_count() or 1) // workers) if workers > 1 else None
-        children: dict[str, list[str]] = {k: [] for k in plan.jobs}
+        children = plan.children()
         waiting = {k: set(job.deps) for k, job in plan.jobs.items()}
-        for k, job in plan.jobs.items():
-            for d in job.deps:
-                children[d].append(k)
         order = {k: i for i, k in enumerate(plan.jobs)}
         ready = [(-priority[k], order[k], k) for k in plan.jobs if not waiting[k]]
         heapq.heapify(ready)

@@ -34,9 +34,11 @@ def content_hash(obj: Any) -> str:
 @functools.cache
 def code_hash(*paths: str) -> str:
     """Hash of the Python sources under ``paths`` (files or folders, relative to the project root or absolute) and
-    of every module of the same packages or of plantbench that they import, directly or not (``import`` statements
-    anywhere in a file, function-level ones included), so that editing a shared helper invalidates every stage that
-    uses it."""
+    of every module of the same packages or of plantbench that they import, directly or not, so that editing a
+    shared helper invalidates every stage that uses it. Stage code (methods, and plantbench's generate, capture and
+    metrics packages) is followed into its function-level imports too, where it imports lazily; plantbench's
+    framework modules (registry, species, runner, I/O) only into their module-level ones: their lazy imports are
+    hooks such as the metric registry's loader, which would tie every stage to the metrics code."""
     roots = [Path(p) if Path(p).is_absolute() else project_root() / p for p in paths]
     start = [f for r in roots for f in (sorted(r.rglob("*.py")) if r.is_dir() else [r] if r.exists() else [])]
     follow = {"plantbench"} | {_module_name(f).split(".")[0] for f in start}
@@ -65,13 +67,26 @@ def _module_file(name: str) -> Path | None:
     return Path(spec.origin) if spec is not None and spec.origin and spec.origin.endswith(".py") else None
 
 
+STAGE_PACKAGES = ("plantbench.generate", "plantbench.capture", "plantbench.metrics")
+"""plantbench packages that are stage code: :func:`code_hash` follows their function-level imports."""
+
+
+def _module_level(tree: ast.Module):
+    """The nodes of a module outside its function and class bodies."""
+    for node in tree.body:
+        if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            yield from ast.walk(node)
+
+
 def _imported_names(file: Path) -> set[str]:
     """Modules a source file imports (absolute names; ``from a import b`` also yields ``a.b``, which may be a
-    submodule)."""
+    submodule): all of them in stage code, the module-level ones in plantbench's framework modules."""
     module = _module_name(file)
     package = module if file.name == "__init__.py" else module.rpartition(".")[0]
+    tree = ast.parse(file.read_bytes(), filename=str(file))
+    stage = module.split(".")[0] != "plantbench" or module.startswith(STAGE_PACKAGES)
     names: set[str] = set()
-    for node in ast.walk(ast.parse(file.read_bytes(), filename=str(file))):
+    for node in ast.walk(tree) if stage else _module_level(tree):
         if isinstance(node, ast.Import):
             names.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):
@@ -121,6 +136,7 @@ TYPICAL_SECONDS = {"plant": 5.0, "capture": 15.0, "points": 1.0, "metrics": 20.0
                    "mvs": 60.0, "leaves": 60.0, "guo": 30.0, "gt": 1.0}
 """Rough seconds of a job per kind (and per shipped method) on a quick-suite case: scheduling priorities only."""
 
+
 @dataclass(frozen=True)
 class Job:
     """One unit of work, run in its own process.
@@ -163,14 +179,19 @@ class Plan:
         self.jobs.setdefault(job.key, job)
         return job.key
 
+    def children(self) -> dict[str, list[str]]:
+        """Job key -> keys of the jobs that read its output."""
+        out: dict[str, list[str]] = {k: [] for k in self.jobs}
+        for k, job in self.jobs.items():
+            for d in job.deps:
+                out[d].append(k)
+        return out
+
     def priorities(self) -> dict[str, float]:
         """Job key -> estimated seconds on the longest chain from the job to the end of the run (the job
         included): the list-scheduling priority (a job on the critical path starts first). The estimates are
         :data:`TYPICAL_SECONDS`; only their ratios matter."""
-        children: dict[str, list[str]] = {k: [] for k in self.jobs}
-        for k, job in self.jobs.items():
-            for d in job.deps:
-                children[d].append(k)
+        children = self.children()
         level: dict[str, float] = {}
         for k in reversed(list(self.jobs)):  # jobs are added after their dependencies: a topological order
             job = self.jobs[k]

@@ -62,3 +62,20 @@ def test_shipped_method_hash_covers_common_helpers():
     names = {_module_name(f) for f in _import_closure(start, frozenset({"plantbench", "reference_impl"}))}
     assert {"reference_impl.common.graph", "reference_impl.common.radii", "plantbench.plant"} <= names
     assert "reference_impl.guo.growth" not in names
+    # the metric registry's lazy loader (a framework hook) does not tie the method to the metrics code
+    assert not any(n.startswith("plantbench.metrics") for n in names)
+
+
+def test_runner_and_plant_stage_hashes_leave_other_stages_out():
+    from plantbench.paths import project_root
+    from plantbench.runner.plan import _import_closure, _module_name
+
+    def closure(path):
+        p = project_root() / path
+        start = tuple(sorted(p.rglob("*.py"))) if p.is_dir() else (p,)
+        return {_module_name(f) for f in _import_closure(start, frozenset({"plantbench"}))}
+
+    worker = closure("plantbench/runner/worker.py")  # imports every stage lazily: module level only
+    assert not any(n.startswith(("plantbench.generate", "plantbench.capture", "plantbench.metrics")) for n in worker)
+    plant = closure("plantbench/generate")
+    assert "plantbench.io.ply" in plant and not any(n.startswith("plantbench.metrics") for n in plant)
