@@ -147,7 +147,7 @@ def reconstruct_points(capture_dir: str | Path, out_dir: str | Path, params: MVS
 
         t0 = time.perf_counter()
         res = run_sfm(Path(capture_dir) / "views" / "images", names, intrinsics=params.intrinsics,
-                      reference=cameras, seed=seed)
+                      reference=cameras, seed=seed, params=params.sfm)
         timings["sfm"] = time.perf_counter() - t0
         stats["sfm"] = {
             "intrinsics": params.intrinsics, "registered": len(res.registered),

@@ -1,6 +1,7 @@
 """Structure from motion with pycolmap on the CPU (poses withheld), and the Sim(3) alignment used for evaluation.
 
-pycolmap 4.2.1: SIFT extraction and exhaustive matching with ``Device.cpu``, then incremental mapping; the largest
+pycolmap 4.2.1: SIFT extraction (DSP-SIFT, affine shape) and exhaustive guided matching with ``Device.cpu``, then
+incremental mapping with relaxed inlier thresholds (:class:`~reference_impl.mvs.params.SfMParams`); the largest
 model is kept. Intrinsics are either fixed to the capture's (``known``: one PINHOLE camera whose parameters are
 not refined) or estimated (``unknown``: one SIMPLE_RADIAL camera initialised by COLMAP's focal-length prior and
 refined by bundle adjustment; the radial term is then ignored for the dense stage, the images being distortion free).
@@ -22,6 +23,8 @@ import numpy as np
 
 from plantbench.cameras import Camera
 from plantbench.errors import InputError, PlantbenchError
+
+from .params import SfMParams
 
 __all__ = ["SfMResult", "run_sfm", "umeyama", "SfMFailed"]
 
@@ -85,7 +88,7 @@ def umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.nda
 
 def run_sfm(
     image_dir: Path, names: list[str], *, intrinsics: str, reference: list[Camera] | None, seed: int,
-    work_dir: Path | None = None, threads: int = 2,
+    work_dir: Path | None = None, threads: int = 2, params: SfMParams | None = None,
 ) -> SfMResult:
     """SIFT + exhaustive matching + incremental mapping on the CPU.
 
@@ -97,6 +100,7 @@ def run_sfm(
     reference : the capture's cameras: the Sim(3) target (evaluation frame) and the known intrinsics
     seed : random seed of the mapper
     work_dir : where to keep the database and model (a temporary folder when None)
+    params : extraction, matching and mapper settings (:class:`~reference_impl.mvs.params.SfMParams`)
     """
     import importlib
 
@@ -107,6 +111,7 @@ def run_sfm(
         raise InputError(f"intrinsics must be 'known' or 'unknown', got {intrinsics!r}")
     if intrinsics == "known" and not reference:
         raise InputError("intrinsics='known' needs the reference cameras")
+    sp = params or SfMParams()
     timings: dict[str, float] = {}
     with tempfile.TemporaryDirectory(prefix="sfm.") as tmp:
         work = Path(work_dir) if work_dir is not None else Path(tmp)
@@ -126,6 +131,11 @@ def run_sfm(
             reader.camera_model = "SIMPLE_RADIAL"
         extraction = pycolmap.FeatureExtractionOptions()
         extraction.num_threads = threads
+        extraction.sift.peak_threshold = sp.peak_threshold
+        extraction.sift.octave_resolution = sp.octave_resolution
+        extraction.sift.domain_size_pooling = sp.domain_size_pooling
+        extraction.sift.estimate_affine_shape = sp.estimate_affine_shape
+        extraction.sift.max_num_features = sp.max_num_features
         t0 = time.perf_counter()
         pycolmap.extract_features(
             db, image_dir, image_names=list(names), camera_mode=pycolmap.CameraMode.SINGLE,
@@ -133,11 +143,17 @@ def run_sfm(
         )
         timings["extract"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        pycolmap.match_exhaustive(db, device=pycolmap.Device.cpu)
+        matching = pycolmap.FeatureMatchingOptions()
+        matching.num_threads = threads
+        matching.guided_matching = sp.guided_matching
+        pycolmap.match_exhaustive(db, matching_options=matching, device=pycolmap.Device.cpu)
         timings["match"] = time.perf_counter() - t0
         opts = pycolmap.IncrementalPipelineOptions()
         opts.num_threads = threads
         opts.random_seed = int(seed) % (2**31)
+        opts.min_num_matches = sp.min_num_matches
+        opts.mapper.init_min_num_inliers = sp.init_min_num_inliers
+        opts.mapper.abs_pose_min_num_inliers = sp.abs_pose_min_num_inliers
         if intrinsics == "known":
             opts.ba_refine_focal_length = False
             opts.ba_refine_principal_point = False

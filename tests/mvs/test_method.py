@@ -116,3 +116,10 @@ def test_estimated_cloud_is_accurate(case, tmp_path, scene):
     stats = json.loads((out / "mvs.json").read_text())
     assert stats["views_used"] == 16 and stats["points"] == len(pts)
     assert len(list((out / "depth").glob("*.npz"))) == 16
+
+
+def test_sfm_options_reach_their_group():
+    p = MVSParams.from_options({"poses": "sfm", "sfm__guided_matching": False, "sfm__peak_threshold": 0.004})
+    assert p.sfm.guided_matching is False and p.sfm.peak_threshold == 0.004 and p.sfm.domain_size_pooling
+    with pytest.raises(InputError, match="sfm"):
+        MVSParams.from_options({"sfm__no_such_option": 1})

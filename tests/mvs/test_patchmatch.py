@@ -77,3 +77,24 @@ def test_estimate_depth_rejects_bad_input(views, ring):
     with pytest.raises(InputError):
         estimate_depth(views[0][0][:64], [views[1][0]], ring[0], [ring[1]], (1.0, 4.0),
                        rng=np.random.default_rng(0))
+
+
+def test_bilinear_lookup_matches_scipy(rng):
+    """The Dr.Jit bilinear lookup of the cost kernels against scipy's map_coordinates (order 1, border replicated),
+    including points outside the image and non-finite coordinates (a ray parallel to the plane)."""
+    from scipy.ndimage import map_coordinates
+
+    from reference_impl.mvs.patchmatch import _bilinear, _drjit
+
+    dr, jl = _drjit()
+    h, w = 37, 53
+    img = rng.random((h, w)).astype(np.float32)
+    u = np.concatenate([rng.uniform(-3, w + 2, 500), [np.nan, np.inf, -np.inf, 0.0, w - 1.0]]).astype(np.float32)
+    v = np.concatenate([rng.uniform(-3, h + 2, 500), [1.0, 2.0, 3.0, np.nan, h - 1.0]]).astype(np.float32)
+    val, inside = _bilinear(dr, jl, jl.Float(img.ravel()), w, h, jl.Float(u), jl.Float(v))
+    val, inside = np.asarray(val), np.asarray(inside)
+    fin = np.isfinite(u) & np.isfinite(v)
+    ref = map_coordinates(img, [v[fin], u[fin]], order=1, mode="nearest")
+    np.testing.assert_allclose(val[fin], ref, atol=1e-5)
+    assert np.all(np.isfinite(val))
+    np.testing.assert_array_equal(inside, fin & (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5))
