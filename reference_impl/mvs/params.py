@@ -49,6 +49,11 @@ class DepthParams:
     pm_step: int = 1
     """Pixel spacing of the PatchMatch window samples (2 with r = 1 gives the sparse 3 x 3 sampling of a 5 x 5
     footprint, ~2.5x faster but measurably less accurate on fine texture)."""
+    pm_checker: bool = False
+    """Use only the window samples with an even offset sum (a checkerboard: 13 of 25 for r = 2), the sparse
+    sampling of Gipuma (Galliani et al. 2015). About 1.6x faster per view, but on a 512 px peach view the share of
+    kept plant pixels within 1 % of the true depth fell from 0.18 to 0.15 (more pixels pass ``max_cost``), so it is
+    off by default."""
     bilateral_sigma_color: float = 0.1
     """Colour sigma of the bilateral support weights (grey levels in [0, 1])."""
     bilateral_sigma_space: float = 3.0

@@ -308,37 +308,38 @@ class _Engine:
         sc = 1.0 / (2 * p.bilateral_sigma_color**2)
         sp = 1.0 / (2 * p.bilateral_sigma_space**2)
         r, step = p.pm_radius, p.pm_step
-        for oy in range(-r, r + 1):
-            for ox in range(-r, r + 1):
-                qx = dr.clip(xi + ox * step, 0, w - 1)
-                qy = dr.clip(yi + oy * step, 0, h - 1)
-                rv = dr.gather(jl.Float, self.ref, jl.UInt32(qx + qy * w))
-                diff = rv - centre
-                wt = dr.exp(-(diff * diff) * sc - float((ox * step) ** 2 + (oy * step) ** 2) * sp)
-                qxf, qyf = jl.Float(qx), jl.Float(qy)
-                qrx = kinv[0, 0] * qxf + kinv[0, 1] * qyf + kinv[0, 2]
-                qry = kinv[1, 1] * qyf + kinv[1, 2]
-                dq = rho / (nx * qrx + ny * qry + nz)
-                X = (qrx * dq, qry * dq, dq)
-                sw = sw + wt
-                sr = sr + wt * rv
-                srr = srr + wt * rv * rv
-                for j in range(ns):
-                    rm, tv = self.rel_l[j]
-                    km = self.src_k_l[j]
-                    cx = rm[0, 0] * X[0] + rm[0, 1] * X[1] + rm[0, 2] * X[2] + tv[0]
-                    cy = rm[1, 0] * X[0] + rm[1, 1] * X[1] + rm[1, 2] * X[2] + tv[1]
-                    cz = rm[2, 0] * X[0] + rm[2, 1] * X[1] + rm[2, 2] * X[2] + tv[2]
-                    u = (km[0, 0] * cx + km[0, 1] * cy) / cz + km[0, 2]
-                    v = km[1, 1] * cy / cz + km[1, 2]
-                    if ox == 0 and oy == 0:
-                        val, inside = self._lookup(j, u, v)
-                        inside_all[j] = inside & (cz > 0) & (dq > 0)
-                    else:
-                        val, _ = self._lookup(j, u, v)
-                    ss[j] = ss[j] + wt * val
-                    sss[j] = sss[j] + wt * val * val
-                    srs[j] = srs[j] + wt * val * rv
+        offsets = [(ox, oy) for oy in range(-r, r + 1) for ox in range(-r, r + 1)
+                   if not p.pm_checker or (ox + oy) % 2 == 0]
+        for ox, oy in offsets:
+            qx = dr.clip(xi + ox * step, 0, w - 1)
+            qy = dr.clip(yi + oy * step, 0, h - 1)
+            rv = dr.gather(jl.Float, self.ref, jl.UInt32(qx + qy * w))
+            diff = rv - centre
+            wt = dr.exp(-(diff * diff) * sc - float((ox * step) ** 2 + (oy * step) ** 2) * sp)
+            qxf, qyf = jl.Float(qx), jl.Float(qy)
+            qrx = kinv[0, 0] * qxf + kinv[0, 1] * qyf + kinv[0, 2]
+            qry = kinv[1, 1] * qyf + kinv[1, 2]
+            dq = rho / (nx * qrx + ny * qry + nz)
+            X = (qrx * dq, qry * dq, dq)
+            sw = sw + wt
+            sr = sr + wt * rv
+            srr = srr + wt * rv * rv
+            for j in range(ns):
+                rm, tv = self.rel_l[j]
+                km = self.src_k_l[j]
+                cx = rm[0, 0] * X[0] + rm[0, 1] * X[1] + rm[0, 2] * X[2] + tv[0]
+                cy = rm[1, 0] * X[0] + rm[1, 1] * X[1] + rm[1, 2] * X[2] + tv[1]
+                cz = rm[2, 0] * X[0] + rm[2, 1] * X[1] + rm[2, 2] * X[2] + tv[2]
+                u = (km[0, 0] * cx + km[0, 1] * cy) / cz + km[0, 2]
+                v = km[1, 1] * cy / cz + km[1, 2]
+                if ox == 0 and oy == 0:
+                    val, inside = self._lookup(j, u, v)
+                    inside_all[j] = inside & (cz > 0) & (dq > 0)
+                else:
+                    val, _ = self._lookup(j, u, v)
+                ss[j] = ss[j] + wt * val
+                sss[j] = sss[j] + wt * val * val
+                srs[j] = srs[j] + wt * val * rv
         mr = sr / sw
         vr = dr.maximum(srr / sw - mr * mr, 0.0)
         costs = []

@@ -160,3 +160,49 @@ def test_species_prior_for_a_weber_penn_species_uses_its_parameters():
     assert prior.roll_angle == levels[-1].rotate
     assert prior.branching_angle == min(90.0, max(5.0, sum(abs(lv.down_angle) for lv in levels) / len(levels)))
     assert prior.tip_radius == spec.wood.min_radius and prior.roots == 1
+
+
+def test_select_leaves_keeps_supported_leaves_once(rng):
+    """Leaves on a chain of nodes; the 'cloud' samples the blades of every third leaf, twice over (two copies of a
+    leaf at the same place). The kept leaves are exactly the sampled ones, one per place, with a consistent mesh."""
+    from dataclasses import replace
+
+    from plantbench.generate.foliage import FoliageParams, place_leaves
+    from plantbench.generate.leaf import BezierLeaf
+    from plantbench.generate.tubes import node_frames
+    from plantbench.plant import TriMesh
+    from reference_impl.common.graph import tree_levels
+    from reference_impl.guo.pipeline import select_leaves
+
+    n = 13
+    pos = np.c_[np.zeros(n), np.zeros(n), np.arange(n) * 0.2]
+    par = np.arange(n) - 1
+    main = par >= 0
+    tangent, normal, _, _ = node_frames(pos, par, main)
+    fol = place_leaves(pos, par, np.full(n, 0.001), main, tangent, normal, tree_levels(par),
+                       FoliageParams(shape=BezierLeaf(), length=0.08), rng)
+    m = len(fol.leaves)
+    q = (len(fol.mesh.vertices) - 6 * m) // m
+    blades = fol.mesh.vertices[: m * q].reshape(m, q, 3)
+    seen = np.arange(m) % 3 == 0
+    cloud = np.concatenate([blades[seen].reshape(-1, 3), rng.normal(0, 5.0, (50, 3)) + [0, 0, 40]])
+    # duplicate every leaf: the copy k + m sits on leaf k
+    mesh2 = TriMesh(np.concatenate([blades.reshape(-1, 3), blades.reshape(-1, 3),
+                                    fol.mesh.vertices[m * q:], fol.mesh.vertices[m * q:]]), np.zeros((0, 3), int))
+    leaves2 = fol.leaves + [replace(lf, id=lf.id + m) for lf in fol.leaves]
+    spacing = float(np.median(cKDTree(cloud).query(cloud, k=2)[0][:, 1]))
+    kept_mesh, kept, counts = select_leaves(mesh2, leaves2, cKDTree(cloud), spacing, support=1.5, dedup=True)
+    # naive: a leaf is supported when every blade vertex is a cloud point (distance 0)
+    assert counts["unsupported"] == 2 * int((~seen).sum())
+    assert counts["duplicates"] == int(seen.sum())
+    assert [lf.id for lf in kept] == list(range(int(seen.sum())))
+    assert sorted(lf.node for lf in kept) == sorted(lf.node for lf, s in zip(fol.leaves, seen) if s)
+    np.testing.assert_allclose(kept_mesh.vertices[: len(kept) * q], blades[seen].reshape(-1, 3))
+    # the real mesh (with faces) keeps exactly the kept leaves' faces, re-indexed onto their vertices
+    kmesh, kl, _ = select_leaves(fol.mesh, fol.leaves, cKDTree(cloud), spacing, support=1.5, dedup=True)
+    assert len(kl) == int(seen.sum()) and len(kmesh.faces) == len(fol.mesh.faces) * len(kl) // m
+    assert kmesh.faces.max() == len(kmesh.vertices) - 1
+    np.testing.assert_allclose(kmesh.vertices[kmesh.faces[0]], fol.mesh.vertices[fol.mesh.faces[0]])
+    # support 0 and no dedup: unchanged
+    same_mesh, same, c0 = select_leaves(fol.mesh, fol.leaves, cKDTree(cloud), spacing, support=0.0, dedup=False)
+    assert same_mesh is fol.mesh and len(same) == m and c0 == {"unsupported": 0, "duplicates": 0}
