@@ -35,9 +35,17 @@ class Plane:
 
 def fit_ground_plane(
     points: np.ndarray, *, inlier_dist: float, rng: np.random.Generator, up=(0.0, 0.0, 1.0),
-    max_tilt_deg: float = 30.0, iterations: int = 500,
+    max_tilt_deg: float = 30.0, iterations: int = 500, max_below: float = 0.2, low_fraction: float = 0.2,
 ) -> tuple[Plane, np.ndarray]:
-    """RANSAC + least-squares plane among near-horizontal planes.
+    """RANSAC + least-squares plane among near-horizontal planes with (almost) nothing below them.
+
+    Half of the 3-point samples are drawn from the lowest ``low_fraction`` of the points along ``up``, where the
+    ground is: with uniform samples alone, clouds whose ground is a small part of the points rarely drew three
+    ground points in 500 samples (the 8-view quick-suite cercis and laurel clouds got planes tilted 28 and 9 deg,
+    up to 1.4 m above the true ground; with the low samples all three quick clouds get the true plane within
+    0.2 deg and 3 mm). And since the ground carries the plant, a candidate with more than ``max_below`` of the
+    points lower than 3 ``inlier_dist`` under it is not the ground (a dense horizontal layer of a crown); MVS
+    noise puts up to 8 % of a cloud below the true ground (laurel, 256 px views), hence 0.2.
 
     Parameters
     ----------
@@ -47,6 +55,9 @@ def fit_ground_plane(
     up : the up direction
     max_tilt_deg : largest angle between the plane normal and ``up``
     iterations : RANSAC samples
+    max_below : largest fraction of points allowed more than 3 ``inlier_dist`` below a candidate (when no candidate
+        qualifies, the one with the fewest points below wins)
+    low_fraction : half of the samples come from this lowest fraction of the points
 
     Returns
     -------
@@ -59,7 +70,9 @@ def fit_ground_plane(
     up = np.asarray(up, float) / np.linalg.norm(up)
     cos_tilt = np.cos(np.radians(max_tilt_deg))
     sub = pts if len(pts) <= 50_000 else pts[rng.choice(len(pts), 50_000, replace=False)]
-    tri = rng.integers(0, len(sub), (iterations, 3))
+    low = np.argsort(sub @ up, kind="stable")[: max(3, int(low_fraction * len(sub)))]
+    half = iterations // 2
+    tri = np.concatenate([rng.integers(0, len(sub), (iterations - half, 3)), low[rng.integers(0, len(low), (half, 3))]])
     a, b, c = sub[tri[:, 0]], sub[tri[:, 1]], sub[tri[:, 2]]
     nrm = np.cross(b - a, c - a)
     ln = np.linalg.norm(nrm, axis=1)
@@ -73,9 +86,13 @@ def fit_ground_plane(
     off = np.einsum("ij,ij->i", nrm, a)
     # score in chunks: |sub @ n - off| < d
     scores = np.zeros(len(nrm), np.int64)
+    below = np.zeros(len(nrm), np.int64)
     for s in range(0, len(nrm), 64):
-        scores[s : s + 64] = (np.abs(sub @ nrm[s : s + 64].T - off[s : s + 64]) < inlier_dist).sum(0)
-    best = int(np.argmax(scores))
+        h = sub @ nrm[s : s + 64].T - off[s : s + 64]
+        scores[s : s + 64] = (np.abs(h) < inlier_dist).sum(0)
+        below[s : s + 64] = (h < -3.0 * inlier_dist).sum(0)
+    ok = below <= max_below * len(sub)
+    best = int(np.argmax(np.where(ok, scores, -1))) if ok.any() else int(np.argmin(below))
     n0, o0 = nrm[best], off[best]
     inl = np.abs(pts @ n0 - o0) < inlier_dist
     for _ in range(3):  # least-squares refinement on the inliers

@@ -477,8 +477,8 @@ def estimate_depth(
     normal_cam[..., 2] = -1.0
     if refine and p.pm_iterations > 0:
         init = _normals_from_depth(np.where(cost < 1.0, depth, np.nan), ref_cam.K)
-        # only textured pixels can keep a depth (below), so only they are refined (the sky is ~25 % of a view)
-        depth, normal_cam, cost = eng.patchmatch(depth.astype(np.float32), init, near, far, rng, active=textured)
+        depth, normal_cam, cost = eng.patchmatch(depth.astype(np.float32), init, near, far, rng,
+                                                 active=textured if p.pm_textured_only else None)
     keep = (cost < p.max_cost) & textured & np.isfinite(depth) & (depth > near) & (depth < far)
     depth = np.where(keep, depth, np.nan).astype(np.float32)
     normal = (normal_cam.reshape(-1, 3) @ ref_cam.R).reshape(normal_cam.shape)  # camera -> world: R^T n

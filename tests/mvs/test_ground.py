@@ -58,3 +58,19 @@ def test_small_components_dropped(rng):
     small = rng.normal(5, 0.01, (3, 3))
     keep = drop_small_components(np.concatenate([big, small]), 0.1, 0.05)
     assert keep[:500].all() and not keep[500:].any()
+
+
+def test_plane_fit_finds_a_sparse_ground_under_a_dense_crown(rng):
+    """The ground is 3 % of the cloud (barely reconstructed); the crown above it holds a dense horizontal layer
+    with more points than the ground (it would win the inlier count) and a trunk reaching down to the ground."""
+    ground = np.column_stack([rng.uniform(-2, 2, (600, 2)), rng.normal(0, 0.003, 600)])
+    layer = np.column_stack([rng.uniform(-1, 1, (6000, 2)), 1.5 + rng.normal(0, 0.003, 6000)])
+    crown = rng.normal([0, 0, 1.6], [0.6, 0.6, 0.4], (12000, 3))
+    trunk = np.column_stack([rng.normal(0, 0.02, (2000, 2)), rng.uniform(0, 1.5, 2000)])
+    pts = np.concatenate([ground, layer, crown, trunk])
+    plane, inl = fit_ground_plane(pts, inlier_dist=0.01, rng=rng)
+    assert np.degrees(np.arccos(plane.normal[2])) < 1.0 and abs(plane.offset) < 0.01
+    assert inl[:600].mean() > 0.9
+    # without the constraint on points below, the dense layer is the plane with the most inliers
+    wrong, _ = fit_ground_plane(pts, inlier_dist=0.01, rng=rng, max_below=1.0)
+    assert abs(wrong.offset - 1.5) < 0.02
