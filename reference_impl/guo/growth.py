@@ -19,6 +19,9 @@ Space colonisation (Palubicki et al. 2009, with seed 000's three adaptations):
   vectors from the bud to its markers (weights w_i of Eq. 8);
 - the shoot has rho_t metamers (the growth units, Table 1), but stops at the weighted centroid of its markers (the
   growing distance of space colonisation, section 5.2), and at least one;
+- bud fate (Palubicki's Borchert-Honda allocation, which seed 000 inherits with the space colonisation): the
+  resource alpha x (lit buds) is shared in proportion to each lit bud's perceived marker weight, and a lateral bud
+  whose share is below one metamer stays dormant (``lateral_vigour``);
 - gaps (our addition, for clouds with unreconstructed parts): when no bud perceives a marker while markers remain,
   the perception radius of that cycle doubles (at most ``max_widen`` times, up to the plant's size) until one does,
   and the shoot may then be as long as that radius, so a stem crosses an empty stretch of the cloud instead of
@@ -40,8 +43,8 @@ from reference_impl.common.graph import subtree_sums
 from reference_impl.common.skeleton_ops import unit
 from reference_impl.guo.params import GuoParams, SpeciesPrior
 
-__all__ = ["logistic_height", "growth_units", "influence_distance", "allometric_radii", "assign_markers", "GrowthOutput",
-           "grow"]
+__all__ = ["logistic_height", "growth_units", "influence_distance", "allometric_radii", "assign_markers",
+           "growing_buds", "GrowthOutput", "grow"]
 
 
 def logistic_height(t: float | np.ndarray, h_max: float, h0: float, rho0: float) -> np.ndarray:
@@ -124,6 +127,22 @@ def assign_markers(markers: np.ndarray, bud_pos: np.ndarray, bud_dir: np.ndarray
     has = ok[np.arange(len(rows)), best]
     out[rows[has]] = safe[has, best[has]]
     return out
+
+
+def growing_buds(q: np.ndarray, apical: np.ndarray, *, alpha: float, min_share: float) -> np.ndarray:
+    """(b,) bool: the buds that grow this cycle (Borchert-Honda bud fate with lambda = 0.5).
+
+    q : (b,) perceived marker weight of each bud (0: no marker, the bud is not lit); apical : (b,) bool.
+    The resource ``alpha`` x (number of lit buds) is shared among the lit buds in proportion to q, so a bud's share
+    is alpha q / mean(q over lit buds) metamers; a lit apical bud grows, a lit lateral bud grows when its share is
+    at least ``min_share`` (0: every lit bud grows).
+    """
+    q = np.asarray(q, float)
+    lit = q > 0
+    if min_share <= 0 or not lit.any():
+        return lit
+    share = alpha * q / q[lit].mean()
+    return lit & (np.asarray(apical, bool) | (share >= min_share))
 
 
 @dataclass(frozen=True)
@@ -281,7 +300,7 @@ def grow(markers: np.ndarray, weights: np.ndarray, root_positions: np.ndarray, r
         wsum = np.bincount(bi, weights=w, minlength=nb)
         vopt = np.stack([np.bincount(bi, weights=w * u[:, c], minlength=nb) for c in range(3)], 1)
         cen = np.stack([np.bincount(bi, weights=w * vec[:, c], minlength=nb) for c in range(3)], 1)
-        lit = np.flatnonzero(wsum > 0)
+        lit = np.flatnonzero(growing_buds(wsum, is_api, alpha=p.bh_alpha, min_share=p.lateral_vigour))
         vopt = vopt[lit] / wsum[lit, None]
         reach = np.linalg.norm(cen[lit] / wsum[lit, None], axis=1)
         # Eq. 9

@@ -11,6 +11,7 @@ from reference_impl.guo.growth import (
     allometric_radii,
     assign_markers,
     grow,
+    growing_buds,
     growth_units,
     influence_distance,
     logistic_height,
@@ -119,3 +120,30 @@ def test_two_roots_compete_and_growth_crosses_gaps(rng):
         mine = out.positions[root_of == r]
         assert mine[:, 2].max() > 1.7                 # crossed the gap and reached its crown
         assert np.all(np.sign(mine[:, 0]) == np.sign(x))  # and stayed on its side
+
+
+def test_borchert_honda_bud_fate_by_hand():
+    q = np.array([10.0, 0.0, 1.0, 4.0, 0.5])
+    apical = np.array([True, False, False, False, False])
+    # lit: 10, 1, 4, 0.5 -> mean 3.875; shares 2 q / 3.875 = 5.16, 0.52, 2.06, 0.26 metamers
+    np.testing.assert_array_equal(growing_buds(q, apical, alpha=2.0, min_share=1.0), [True, False, False, True, False])
+    apical[4] = True  # a lit apical bud grows whatever its share
+    np.testing.assert_array_equal(growing_buds(q, apical, alpha=2.0, min_share=1.0), [True, False, False, True, True])
+    np.testing.assert_array_equal(growing_buds(q, apical, alpha=2.0, min_share=0.0), q > 0)
+    assert not growing_buds(np.zeros(3), np.zeros(3, bool), alpha=2.0, min_share=1.0).any()
+
+
+def test_borchert_honda_thins_the_branching(rng):
+    """A stem in a uniform crown of markers: without the bud-fate rule nearly every lateral bud that perceives a
+    marker breaks; with it the weakly lit ones wait, and fewer branches grow into the same crown."""
+    z = np.arange(0.02, 0.8, 0.01)
+    crown = np.array([0.0, 0.0, 1.3]) + rng.uniform(-0.5, 0.5, (3000, 3))
+    markers = np.concatenate([np.c_[np.zeros_like(z), np.zeros_like(z), z], crown])
+    w = rng.uniform(0.2, 1.0, len(markers))
+    args = (markers, w, np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]), np.array([0.02]), 1.8, PRIOR)
+    tips = []
+    for lv in (0.0, 1.0):
+        out = grow(*args, GuoParams(lateral_vigour=lv))
+        tips.append(int(np.sum(np.bincount(out.parents[out.parents >= 0], minlength=len(out.parents)) == 0)))
+        assert out.positions[:, 2].max() > 1.6
+    assert tips[1] < tips[0]

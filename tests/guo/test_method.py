@@ -35,7 +35,8 @@ def test_reconstructs_a_tree_and_writes_the_contract(tree_case, tmp_path):
     assert rec.skeleton is not None and rec.mesh is not None and rec.leaves is not None
     assert len(rec.skeleton.roots) == 1
     np.testing.assert_allclose(rec.skeleton.positions[rec.skeleton.roots][0, :2], [0, 0], atol=0.03)
-    assert abs(rec.skeleton.positions[:, 2].max() - gt.positions[:, 2].max()) < 0.1
+    # the top within the kill distance d_k = 0.5 x 6 l = 0.153 m: markers that close to a node are removed
+    assert abs(rec.skeleton.positions[:, 2].max() - gt.positions[:, 2].max()) < 0.5 * 6 * 0.051
     # the skeleton and the ground-truth axes cover each other within two internodes (laurel: l = 5.1 cm; shoots are
     # straight chains of internodes aimed at marker centroids, so they cut across curved axes), and the skeleton
     # is closer to the truth than to a copy of it moved by 5 cm
