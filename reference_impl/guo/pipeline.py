@@ -188,6 +188,13 @@ def _leaves(pos, parents, radii, lateral, foliage, rng, tip_internodes: int):
     return place_leaves(pos, parents, eligible_r, main, tangent, normal, levels, foliage, rng)
 
 
+def _blades(verts: np.ndarray, m: int) -> tuple[int, np.ndarray]:
+    """Vertices per blade and the (m, q, 3) blade view of a foliage mesh's vertices: m blades of q vertices each,
+    then m 6-vertex petioles (the layout of plantbench.generate.foliage.place_leaves)."""
+    q = (len(verts) - 6 * m) // m
+    return q, verts[: m * q].reshape(m, q, 3)
+
+
 def orient_leaves(foliage, cloud_tree: cKDTree, cloud: np.ndarray, *, min_points: int = 5):
     """Data-driven leaf configuration: a leaf with cloud points near it moves onto the leaf the cloud saw.
 
@@ -204,8 +211,7 @@ def orient_leaves(foliage, cloud_tree: cKDTree, cloud: np.ndarray, *, min_points
     if m == 0:
         return foliage.mesh, leaves, 0
     verts = foliage.mesh.vertices.copy()
-    q = (len(verts) - 6 * m) // m
-    blade = verts[: m * q].reshape(m, q, 3)
+    q, blade = _blades(verts, m)
     base = np.array([lf.transform[:3, 3] for lf in leaves])
     rot = np.array([lf.transform[:3, :3] for lf in leaves])
     length = np.array([lf.length for lf in leaves])
@@ -272,17 +278,15 @@ def select_leaves(mesh: TriMesh, leaves: list[Leaf], cloud_tree: cKDTree, spacin
     if m == 0:
         return mesh, leaves, counts
     verts = mesh.vertices
-    q = (len(verts) - 6 * m) // m
-    blade = verts[: m * q].reshape(m, q, 3)
+    q, blade = _blades(verts, m)
     resid = cloud_tree.query(blade.reshape(-1, 3), k=1, workers=-1)[0].reshape(m, q).mean(axis=1)
+    length = np.array([lf.length for lf in leaves])
     keep = np.ones(m, bool)
     if support > 0:
-        length = np.array([lf.length for lf in leaves])
         keep = resid <= support * np.maximum(spacing, LEAF_SUPPORT_LENGTH * length)
         counts["unsupported"] = int(m - keep.sum())
     if dedup and keep.any():
         centre = blade.mean(axis=1)
-        length = np.array([lf.length for lf in leaves])
         cand = np.flatnonzero(keep)
         cand = cand[np.argsort(resid[cand], kind="stable")]
         tree = cKDTree(centre[cand])
