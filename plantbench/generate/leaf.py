@@ -150,21 +150,33 @@ def _axis_frame(axis: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 def _longitudinal_controls(omega: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Axis control (..., 4, 3) and right-half silhouette, F and G control points (..., 5, 3) each (Eq. 3-4)."""
+    axis, right, _ = _half_controls(omega, sides=(1.0,))
+    return (axis, *right)
+
+
+def _half_controls(omega: np.ndarray, sides: tuple[float, ...] = (1.0, -1.0)
+                   ) -> tuple[np.ndarray, tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+    """Axis control (..., 4, 3) and, per side in ``sides`` (+1 right, -1 left: the left half mirrors the sideways
+    offsets of S, F and G), that half's silhouette, F and G control points (..., 5, 3) each (Eq. 3-4). The axis
+    frame is evaluated once for both halves."""
     omega = np.asarray(omega, dtype=np.float64)
     axis = _axis_control(omega)
     vbar = omega[..., 6:9]
-    xs = omega[..., 9:12]
     zs, zf, zg = omega[..., 12:15], omega[..., 15:18], omega[..., 18:21]
     pts, normal = _axis_frame(axis, vbar)  # (..., 3, 3)
     zhat = np.array([0.0, 0.0, 1.0])
     base = axis[..., :1, :]
     apex = axis[..., 3:, :]
 
-    def curve(frac: float, z: np.ndarray) -> np.ndarray:
+    def curve(frac: float, xs: np.ndarray, z: np.ndarray) -> np.ndarray:
         inner = pts + frac * xs[..., None] * normal + z[..., None] * zhat
         return np.concatenate([base, inner, apex], axis=-2)
 
-    return axis, curve(1.0, zs), curve(1.0 / 3.0, zf), curve(2.0 / 3.0, zg)
+    halves = []
+    for sign in sides:
+        xs = omega[..., 9:12] if sign > 0 else -omega[..., 9:12]
+        halves.append((curve(1.0, xs, zs), curve(1.0 / 3.0, xs, zf), curve(2.0 / 3.0, xs, zg)))
+    return axis, halves[0], (halves[1] if len(halves) > 1 else ())
 
 
 def leaf_points(omega: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -180,14 +192,11 @@ def leaf_points(omega: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     omega = np.asarray(omega, dtype=np.float64)
     lead = omega.shape[:-1]
     out = np.empty(lead + (len(u), 3))
-    axis, _, _, _ = _longitudinal_controls(omega)
-    omega_left = omega.copy()
-    omega_left[..., 9:12] *= -1.0  # the u < 0 half mirrors the sideways offsets of S, F and G
-    for sel, om in ((u >= 0, omega), (u < 0, omega_left)):
+    axis, right, left = _half_controls(omega)
+    for sel, (sil, f, g) in ((u >= 0, right), (u < 0, left)):
         idx = np.flatnonzero(sel)
         if len(idx) == 0:
             continue
-        _, sil, f, g = _longitudinal_controls(om)
         b3 = _bernstein(v[idx], 3)  # (q, 4)
         b4 = _bernstein(v[idx], 4)  # (q, 5)
         a_v = np.matmul(b3, axis)  # (..., q, 3)

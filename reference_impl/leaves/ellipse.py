@@ -14,7 +14,7 @@ import numpy as np
 from plantbench.errors import InputError
 from plantbench.plant import check_shape
 
-__all__ = ["Ellipse", "khachiyan", "min_volume_ellipse", "min_volume_ellipses", "ellipse_extent"]
+__all__ = ["Ellipse", "khachiyan", "min_volume_ellipse", "min_volume_ellipses", "ellipse_extent", "ray_extent"]
 
 
 @dataclass(frozen=True)
@@ -176,11 +176,17 @@ def ellipse_extent(ellipse: Ellipse, origins: np.ndarray, directions: np.ndarray
     origins, directions : (n, 2) float
     returns : (n,) float
     """
-    o = np.asarray(origins, float) - ellipse.centre
+    return ray_extent(ellipse.centre, ellipse.A, origins, directions)
+
+
+def ray_extent(centre: np.ndarray, A: np.ndarray, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """:func:`ellipse_extent` for one ellipse per ray: centre (n, 2) or (2,), A (n, 2, 2) or (2, 2)."""
+    o = np.asarray(origins, float) - centre
     dvec = np.asarray(directions, float)
-    a = np.einsum("ni,ij,nj->n", dvec, ellipse.A, dvec)
-    b = 2 * np.einsum("ni,ij,nj->n", o, ellipse.A, dvec)
-    c = np.einsum("ni,ij,nj->n", o, ellipse.A, o) - 1.0
+    A = np.broadcast_to(np.asarray(A, float), o.shape[:-1] + (2, 2))
+    a = np.einsum("ni,nij,nj->n", dvec, A, dvec)
+    b = 2 * np.einsum("ni,nij,nj->n", o, A, dvec)
+    c = np.einsum("ni,nij,nj->n", o, A, o) - 1.0
     disc = b * b - 4 * a * c
     t = (-b + np.sqrt(np.maximum(disc, 0.0))) / (2 * a)
     return np.where(disc >= 0, np.maximum(t, 0.0), 0.0)

@@ -33,7 +33,7 @@ from plantbench.generate.leaf import (
     _axis_control,
     _axis_frame,
     _bernstein,
-    _longitudinal_controls,
+    _half_controls,
     leaf_points,
     max_half_width,
 )
@@ -42,7 +42,7 @@ from plantbench.plant import check_shape
 from .ellipse import Ellipse, ellipse_extent
 from .params import LeafParams
 
-__all__ = ["LeafFit", "LeafModel", "fit_leaf", "fit_leaves", "lm_batch", "uv_mapping", "initial_params", "leaf_frame"]
+__all__ = ["LeafFit", "LeafModel", "fit_leaf", "fit_leaves", "lm_batch", "uv_mapping", "uv_mapping_batch", "model_weights", "initial_params", "leaf_frame"]
 
 
 @dataclass(frozen=True)
@@ -72,30 +72,18 @@ class LeafFit:
 class LeafModel:
     """:func:`plantbench.generate.leaf.leaf_points` at fixed (u, v), fast: the surface is a fixed linear combination
     of the control points of A, F, G and S (Eq. 5-6; both halves), so the (m, 34) weights are computed once and
-    each evaluation is the control points (the model's own :func:`_longitudinal_controls`) and one product.
+    each evaluation is the control points (the model's own :func:`_half_controls`) and one product.
 
     u, v : (m,) float, as in ``leaf_points``
     """
 
     def __init__(self, u: np.ndarray, v: np.ndarray) -> None:
-        u, v = np.asarray(u, float), np.asarray(v, float)
-        b3, b4, bu = _bernstein(v, 3), _bernstein(v, 4), _bernstein(np.abs(u), 3)
-        w = np.zeros((len(u), 34))
-        w[:, 0:4] = bu[:, 0:1] * b3
-        right = u >= 0
-        for half, off in ((right, 4), (~right, 19)):
-            for k in range(3):  # F, G, S
-                w[half, off + 5 * k: off + 5 * k + 5] = bu[half, k + 1: k + 2] * b4[half]
-        self.weights = w
+        self.weights = model_weights(np.asarray(u, float), np.asarray(v, float))
 
     @staticmethod
     def controls(omega: np.ndarray) -> np.ndarray:
         """(..., 34, 3) control points: axis, right F, G, S, left F, G, S."""
-        omega = np.asarray(omega, float)
-        left = omega.copy()
-        left[..., 9:12] *= -1.0
-        axis, sr, fr, gr = _longitudinal_controls(omega)
-        _, sl, fl, gl = _longitudinal_controls(left)
+        axis, (sr, fr, gr), (sl, fl, gl) = _half_controls(omega)
         return np.concatenate([axis, fr, gr, sr, fl, gl, sl], axis=-2)
 
     def __call__(self, omega: np.ndarray) -> np.ndarray:
@@ -137,46 +125,100 @@ def initial_params(half_width: float) -> np.ndarray:
     return omega
 
 
+def model_weights(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(..., 34) weights of the control points of :meth:`LeafModel.controls` for surface points at (u, v) (...):
+    Eq. 5-6, the axis by the cubic cross-section weight of u, F, G and S of the point's half by the others."""
+    b3, b4, bu = _bernstein(v, 3), _bernstein(v, 4), _bernstein(np.abs(u), 3)
+    w = np.zeros(u.shape + (34,))
+    w[..., 0:4] = bu[..., 0:1] * b3
+    right = (u >= 0)[..., None]
+    for off, sel in ((4, right), (19, ~right)):
+        for k in range(3):  # F, G, S
+            w[..., off + 5 * k: off + 5 * k + 5] = np.where(sel, bu[..., k + 1: k + 2] * b4, 0.0)
+    return w
+
+
 def uv_mapping(omega: np.ndarray, points: np.ndarray, ellipse: Ellipse | None, scanlines: int
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """UV mapping P_A by scanlines (section 5) and the occlusion weights of Eq. 10.
+    """UV mapping P_A by scanlines (section 5) and the occlusion weights of Eq. 10, for one leaf
+    (:func:`uv_mapping_batch`).
 
     omega : (21,) float; points : (n, 3) float, unit leaf frame
     ellipse : the enclosing ellipse in the unit leaf frame's xy plane (None: all weights 1)
     returns : index (m,) of the mapped points, u (m,), v (m,), w (m,) (each point's scanline-side weight)
     """
+    pts = np.asarray(points, float)[None]
+    ell = None if ellipse is None else (ellipse.centre[None], ellipse.A[None])
+    ok, u, v, w = uv_mapping_batch(np.asarray(omega, float)[None], pts, np.ones(pts.shape[:2], bool), ell, scanlines)
+    idx = np.flatnonzero(ok[0])
+    return idx, u[0, idx], v[0, idx], w[0, idx]
+
+
+def uv_mapping_batch(omega: np.ndarray, points: np.ndarray, valid: np.ndarray,
+                     ellipses: tuple[np.ndarray, np.ndarray] | None, scanlines: int
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """UV mapping of many leaves at once (padded): a point within half the scanline spacing of scanline v_j gets
+    v = v_j and u = its signed distance from the axis over the farthest point of the same scanline and side;
+    Eq. 10's weight of that scanline side is x_s / (x_s + x_e), x_e the distance on to the enclosing ellipse.
+
+    omega : (k, 21); points : (k, n, 3), unit leaf frames; valid : (k, n) bool (False: padding)
+    ellipses : centres (k, 2) and matrices (k, 2, 2) of the enclosing ellipses (None: all weights 1)
+    returns : mapped (k, n) bool, u, v, w (k, n) float (0 where not mapped)
+    """
+    from .ellipse import ray_extent
+
+    k, n = valid.shape
     vj = np.linspace(0.0, 1.0, scanlines)
-    axis = _axis_control(np.asarray(omega, float))
-    apts, normal = _axis_frame(axis, vj)  # (s, 3), in-plane unit normals (+y side for a +x tangent)
-    tangent = np.stack([normal[:, 1], -normal[:, 0]], 1)  # in-plane unit tangents
-    half = 0.5 * np.linalg.norm(np.diff(apts[:, :2], axis=0), axis=1)
-    reach = np.minimum(np.concatenate([half[:1], half]), np.concatenate([half, half[-1:]]))
-    rel = points[:, None, :2] - apts[None, :, :2]  # (n, s, 2)
-    along = np.einsum("nsk,sk->ns", rel, tangent)
-    j = np.argmin(np.abs(along), axis=1)
-    n = len(points)
-    ok = np.abs(along[np.arange(n), j]) <= reach[j] + 1e-12
-    idx = np.flatnonzero(ok)
-    j = j[idx]
-    d = np.einsum("nk,nk->n", rel[idx, j], normal[j, :2])
+    apts, normal = _axis_frame(_axis_control(omega), np.broadcast_to(vj, (k, scanlines)))  # (k, s, 3)
+    apts, normal = apts[..., :2], normal[..., :2]
+    tangent = np.stack([normal[..., 1], -normal[..., 0]], -1)  # in-plane unit tangents
+    half = 0.5 * np.linalg.norm(np.diff(apts, axis=1), axis=2)  # (k, s - 1)
+    reach = np.minimum(np.concatenate([half[:, :1], half], 1), np.concatenate([half, half[:, -1:]], 1))
+    rel = points[:, :, None, :2] - apts[:, None]  # (k, n, s, 2)
+    along = np.einsum("knsc,ksc->kns", rel, tangent)
+    j = np.argmin(np.abs(along), axis=2)  # (k, n)
+    kk = np.arange(k)[:, None]
+    ok = valid & (np.abs(np.take_along_axis(along, j[..., None], 2)[..., 0]) <= reach[kk, j] + 1e-12)
+    d = np.einsum("knc,knc->kn", np.take_along_axis(rel, j[..., None, None], 2)[:, :, 0], normal[kk, j])
     side = (d >= 0).astype(np.int64)
-    key = j * 2 + side
-    far = np.zeros(2 * scanlines)
-    np.maximum.at(far, key, np.abs(d))
+    key = (kk * scanlines + j) * 2 + side  # (k, n), one slot per leaf, scanline and side
+    far = np.zeros(k * 2 * scanlines)
+    np.maximum.at(far, key[ok], np.abs(d[ok]))
     denom = far[key]
-    u = np.where(denom > 0, d / np.where(denom > 0, denom, 1.0), 0.0)
-    w = np.ones(len(idx))
-    if ellipse is not None:
+    u = np.where(ok & (denom > 0), d / np.where(denom > 0, denom, 1.0), 0.0)
+    w = ok.astype(float)
+    if ellipses is not None:
         keys = np.flatnonzero(far > 0)
-        sj, ss = keys // 2, keys % 2
-        sgn = np.where(ss == 1, 1.0, -1.0)[:, None]
-        dirs = sgn * normal[sj, :2]
-        origin = apts[sj, :2] + dirs * far[keys][:, None]
-        xe = ellipse_extent(ellipse, origin, dirs)
-        wk = np.ones(2 * scanlines)
+        leaf, rest = np.divmod(keys, 2 * scanlines)
+        sj, ss = rest // 2, rest % 2
+        dirs = np.where(ss == 1, 1.0, -1.0)[:, None] * normal[leaf, sj]
+        origin = apts[leaf, sj] + dirs * far[keys][:, None]
+        xe = ray_extent(ellipses[0][leaf], ellipses[1][leaf], origin, dirs)
+        wk = np.ones(k * 2 * scanlines)
         wk[keys] = far[keys] / (far[keys] + xe)
-        w = wk[key]
-    return idx, u, vj[j], w
+        w = np.where(ok, wk[key], 0.0)
+    return ok, u, np.where(ok, vj[j], 0.0), w
+
+
+NONLINEAR = 9
+"""Parameters 0-8 (axis control points and the silhouette stations vbar) move the control points nonlinearly; 9-20
+(sideways offsets xs and heights zs, zf, zg) linearly (Eq. 3-4): their derivatives are :func:`linear_jacobian`."""
+
+
+def linear_jacobian(omega: np.ndarray) -> np.ndarray:
+    """(k, 12, 34, 3) exact derivatives of :meth:`LeafModel.controls` with respect to omega[9:21] (Eq. 3-4: an
+    inner control point i of S, F, G is ``A(vbar_i) + frac xs_i n(vbar_i) + z_i zhat`` with frac 1, 1/3, 2/3; the
+    left half mirrors xs)."""
+    omega = np.asarray(omega, float)
+    _, normal = _axis_frame(_axis_control(omega), omega[:, 6:9])  # (k, 3, 3)
+    jac = np.zeros((len(omega), 12, 34, 3))
+    # control layout of LeafModel.controls: axis 0-3, right F 4-8, G 9-13, S 14-18, left F 19-23, G 24-28, S 29-33
+    for first, frac, zgroup in ((4, 1 / 3, 1), (9, 2 / 3, 2), (14, 1.0, 0)):
+        for side, sign in ((0, 1.0), (15, -1.0)):
+            for i in range(3):
+                jac[:, i, first + side + 1 + i] = sign * frac * normal[:, i]
+                jac[:, 3 + 3 * zgroup + i, first + side + 1 + i, 2] = 1.0
+    return jac
 
 
 def lm_batch(omega: np.ndarray, weights: np.ndarray, target: np.ndarray, w: np.ndarray, iterations: int,
@@ -199,22 +241,23 @@ def lm_batch(omega: np.ndarray, weights: np.ndarray, target: np.ndarray, w: np.n
     lam = np.full(k, 1e-3) if damping is None else damping.copy()
     eye = np.eye(21)
     ww = weights * w[..., None]
-    gram = np.einsum("kmj,kml->kjl", ww, weights, optimize=True)  # (k, 34, 34)
-    h = np.einsum("kmj,kmc->kjc", ww, target, optimize=True)  # (k, 34, 3)
+    gram = np.matmul(ww.transpose(0, 2, 1), weights)  # (k, 34, 34)
+    h = np.matmul(ww.transpose(0, 2, 1), target)  # (k, 34, 3)
     t0 = np.einsum("km,kmc,kmc->k", w, target, target)
 
-    def cost_of(ctrl):
-        return np.einsum("kjc,kjl,klc->k", ctrl, gram, ctrl) - 2 * np.einsum("kjc,kjc->k", ctrl, h) + t0
+    def cost_of(ctrl):  # batched matmuls: einsum's generic loops were half of the fit's time
+        return np.sum(ctrl * (np.matmul(gram, ctrl) - 2 * h), axis=(1, 2)) + t0
 
     ctrl = LeafModel.controls(omega)
     cost = cost_of(ctrl)
-    offsets = np.concatenate([np.zeros((1, 21)), step * eye])[None]
+    offsets = np.concatenate([np.zeros((1, 21)), step * eye[:NONLINEAR]])[None]
     for _ in range(iterations):
-        cb = LeafModel.controls(omega[:, None, :] + offsets)  # (k, 22, 34, 3)
-        dc = (cb[:, 1:] - cb[:, :1]) / step  # (k, 21, 34, 3)
-        gdc = np.matmul(gram[:, None], dc)  # (k, 21, 34, 3); much faster than the equivalent einsum
-        a = np.einsum("kajc,kbjc->kab", dc, gdc)
-        g = np.einsum("kajc,kjc->ka", dc, np.einsum("kjl,klc->kjc", gram, ctrl) - h)
+        cb = LeafModel.controls(omega[:, None, :] + offsets)  # (k, 10, 34, 3)
+        dc = np.concatenate([(cb[:, 1:] - cb[:, :1]) / step, linear_jacobian(omega)], axis=1)  # (k, 21, 34, 3)
+        dct = dc.transpose(0, 1, 3, 2).reshape(k, 63, 34)  # rows: (parameter, coordinate)
+        a = np.matmul(dct.reshape(k, 21, 102), np.matmul(dct, gram).reshape(k, 21, 102).transpose(0, 2, 1))
+        r = (np.matmul(gram, ctrl) - h).transpose(0, 2, 1).reshape(k, 102, 1)
+        g = np.matmul(dct.reshape(k, 21, 102), r)[..., 0]
         diag = np.maximum(np.diagonal(a, axis1=1, axis2=2), 1e-12)
         lhs = a + lam[:, None, None] * diag[:, None, :] * eye
         try:
@@ -254,32 +297,37 @@ def _alternate(problems: list[_Problem], params: LeafParams, iterations: int) ->
         active = [p for p in problems if not p.done]
         if not active:
             return
-        maps = []
-        for p in active:
-            idx, u, v, w = uv_mapping(p.omega, p.pts, p.ellipse if params.occlusion_weights else None,
-                                      params.scanlines)
-            if len(idx) < 8:
-                p.done = True
-                continue
-            maps.append((p, idx, u, v, w))
-        if params.lm_backend == "scipy":
-            for p, idx, u, v, w in maps:
-                omega, cost = _scipy_lm(p.omega, LeafModel(u, v), p.pts[idx], np.sqrt(w), params.lm_evaluations)
-                _update(p, omega, cost, w.sum(), params)
-            continue
-        for chunk in range(0, len(maps), 512):
-            part = maps[chunk: chunk + 512]
-            m = max(len(x[1]) for x in part)
-            wts = np.zeros((len(part), m, 34))
-            tgt = np.zeros((len(part), m, 3))
-            wgt = np.zeros((len(part), m))
-            for i, (p, idx, u, v, w) in enumerate(part):
-                wts[i, : len(idx)] = LeafModel(u, v).weights
-                tgt[i, : len(idx)] = p.pts[idx]
-                wgt[i, : len(idx)] = w
-            omega, cost, _ = lm_batch(np.stack([x[0].omega for x in part]), wts, tgt, wgt, params.lm_evaluations)
-            for i, (p, _, _, _, w) in enumerate(part):
-                _update(p, omega[i], cost[i], w.sum(), params)
+        for chunk in range(0, len(active), 512):
+            _alternate_chunk(active[chunk: chunk + 512], params)
+
+
+def _alternate_chunk(part: list[_Problem], params: LeafParams) -> None:
+    """One UV mapping (all problems of ``part`` at once, padded) and one weighted LM solve of each."""
+    n = max(len(p.pts) for p in part)
+    pts = np.zeros((len(part), n, 3))
+    valid = np.zeros((len(part), n), bool)
+    for i, p in enumerate(part):
+        pts[i, : len(p.pts)] = p.pts
+        valid[i, : len(p.pts)] = True
+    ellipses = None
+    if params.occlusion_weights:
+        ellipses = (np.stack([p.ellipse.centre for p in part]), np.stack([p.ellipse.A for p in part]))
+    omega = np.stack([p.omega for p in part])
+    ok, u, v, w = uv_mapping_batch(omega, pts, valid, ellipses, params.scanlines)
+    mapped = ok.sum(1)
+    for i in np.flatnonzero(mapped < 8):
+        part[i].done = True
+    keep = np.flatnonzero(mapped >= 8)
+    if params.lm_backend == "scipy":
+        for i in keep:
+            idx = np.flatnonzero(ok[i])
+            om, cost = _scipy_lm(omega[i], LeafModel(u[i, idx], v[i, idx]), pts[i, idx], np.sqrt(w[i, idx]),
+                                 params.lm_evaluations)
+            _update(part[i], om, cost, w[i].sum(), params)
+        return
+    om, cost, _ = lm_batch(omega[keep], model_weights(u[keep], v[keep]), pts[keep], w[keep], params.lm_evaluations)
+    for j, i in enumerate(keep):
+        _update(part[i], om[j], cost[j], w[i].sum(), params)
 
 
 def _update(p: _Problem, omega: np.ndarray, cost: float, wsum: float, params: LeafParams) -> None:

@@ -115,3 +115,17 @@ def test_many_leaves_at_once_equal_one_at_a_time(rng):
         alone = fit_leaf(cloud, rng=np.random.default_rng(0))
         np.testing.assert_allclose(f.transform, alone.transform, atol=1e-9)
         np.testing.assert_allclose(f.omega, alone.omega, atol=1e-6)
+
+
+def test_linear_jacobian_matches_central_differences(rng):
+    """lm_batch differentiates parameters 9-20 analytically; they must match the generator's control points."""
+    from reference_impl.leaves.fit import NONLINEAR, linear_jacobian
+
+    omega = initial_params(0.2)[None] + rng.normal(0, 0.05, (3, 21))
+    jac = linear_jacobian(omega)
+    h = 1e-6
+    for k in range(NONLINEAR, 21):
+        e = np.zeros(21)
+        e[k] = h
+        num = (LeafModel.controls(omega + e) - LeafModel.controls(omega - e)) / (2 * h)
+        np.testing.assert_allclose(jac[:, k - NONLINEAR], num, atol=1e-7)
