@@ -93,7 +93,8 @@ def run_job(cache: Path, kind: str, key: str, folder: Path, params: dict) -> dic
 
 
 def _points(cache: Path, folder: Path, params: dict) -> None:
-    """Input folder of a 'points' method: points.ply (coordinates only) and, for view captures, views/."""
+    """Input folder of a 'points' method: points.ply (coordinates only) and, for view captures, views/ (and depth/
+    when the mvs stage wrote its depth maps)."""
     import shutil
 
     from plantbench.io.ply import read_points, write_points
@@ -108,6 +109,8 @@ def _points(cache: Path, folder: Path, params: dict) -> None:
             raise FileNotFoundError(f"the mvs stage wrote no points.ply ({src})")
         shutil.copyfile(src, folder / "points.ply")
         _link(case / "views", folder / "views")
+        if (src.parent / "depth").is_dir():  # the mvs stage's depth maps (write_depth), for leaf segmentation
+            _link(src.parent / "depth", folder / "depth")
 
 
 def main(argv: list[str]) -> int:

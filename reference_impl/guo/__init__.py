@@ -9,16 +9,20 @@ Eq. 5-7, 9, shedding), :mod:`.refine` (collapse, Hermite smoothing), :mod:`.pipe
 
 Options (a suite's ``[method_options.guo]``): every :class:`~reference_impl.guo.params.GuoParams` field by name,
 plus ``prior`` (True: the species hint's parameters; False: generic defaults, to measure what the prior buys) and
-``leaves`` ('procedural', the default: leaves placed per the species library and turned into the cloud;
-'segment': the fitted leaves of the leaf-segmentation stage, not wired yet: raises NotAvailableError). ``candidates=k`` (k > 1) turns on analysis-by-synthesis,
-which needs ``capture_dir/views``.
+``leaves`` ('procedural', the default: leaves placed per the species library, turned onto the cloud and kept where
+the cloud supports them; 'segment': the leaves that :mod:`reference_impl.leaves` segments and fits from the views,
+seed 001, which needs ``capture_dir/views``), ``leaf_depth`` (with 'segment': the depth maps the leaves are
+segmented on, 'mvs' (default: ``capture_dir/depth``, the mvs stage's maps when it ran with ``write_depth``, else
+estimated) or 'oracle' (the capture's exact depth: an upper bound)) and ``leaf__NAME`` for any
+:class:`~reference_impl.leaves.LeafParams` field. ``candidates=k`` (k > 1) turns on analysis-by-synthesis, which
+needs ``capture_dir/views``.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from plantbench.errors import InputError, NotAvailableError
+from plantbench.errors import InputError
 from plantbench.io.plantio import write_reconstruction
 from plantbench.seeding import rng as seeded_rng
 from reference_impl.common.inputs import load_points
@@ -53,21 +57,33 @@ class Guo:
         leaves = options.pop("leaves", "procedural")
         if leaves not in ("procedural", "segment"):
             raise InputError(f"guo: leaves must be 'procedural' or 'segment', got {leaves!r}")
-        if leaves == "segment":
-            raise NotAvailableError("guo: leaves='segment' (fitted leaves of reference_impl.leaves.segment_and_fit, "
-                                    "which needs per-view depth maps) is not wired into guo yet; use "
-                                    "leaves='procedural'")
+        leaf_depth = options.pop("leaf_depth", "mvs")
+        leaf_options = {k[len("leaf__"):]: options.pop(k) for k in list(options) if k.startswith("leaf__")}
+        if leaves == "procedural" and (leaf_options or leaf_depth != "mvs"):
+            raise InputError("guo: leaf_depth and leaf__* options need leaves='segment'")
+        if leaf_depth not in ("mvs", "oracle"):
+            raise InputError(f"guo: leaf_depth must be 'mvs' or 'oracle', got {leaf_depth!r}")
         params = params_from_options(options)
         prior = species_prior(species, prior=use_prior)
         points = load_points(capture_dir)
         rng = seeded_rng(seed, "guo")
+        fitted, leaf_stats = None, None
+        if leaves == "segment":
+            from reference_impl.leaves import LeafParams, fitted_mesh, leaves_from_capture
+
+            found = leaves_from_capture(capture_dir, depth=leaf_depth, seed=seed, species=species,
+                                        params=LeafParams.from_options(leaf_options))
+            fitted = (fitted_mesh(found), found.leaves)
+            leaf_stats = {"count": len(found.leaves), "skipped": found.skipped, "stats": found.stats}
         if params.candidates > 1:
             from reference_impl.guo.abs import analysis_by_synthesis, load_input_views
 
             cameras, images = load_input_views(capture_dir)
-            result = analysis_by_synthesis(points, cameras, images, rng, params, prior)
+            result = analysis_by_synthesis(points, cameras, images, rng, params, prior, fitted)
         else:
-            result = reconstruct_guo(points, rng, params, prior)
+            result = reconstruct_guo(points, rng, params, prior, fitted)
+        if leaf_stats is not None:
+            result.info["leaf_segmentation"] = leaf_stats
         write_reconstruction(out_dir, result.skeleton, mesh=result.mesh, leaves=result.leaves)
         from plantbench.io.atomic import write_json
 

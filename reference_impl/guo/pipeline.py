@@ -312,8 +312,11 @@ def select_leaves(mesh: TriMesh, leaves: list[Leaf], cloud_tree: cKDTree, spacin
     return TriMesh(new_verts, new_faces), kept, counts
 
 
-def model(prep: Prepared, prior: SpeciesPrior, params: GuoParams, rng: np.random.Generator) -> GuoResult:
-    """Steps 5-8 for one parameter set."""
+def model(prep: Prepared, prior: SpeciesPrior, params: GuoParams, rng: np.random.Generator,
+          fitted: tuple[TriMesh, list[Leaf]] | None = None) -> GuoResult:
+    """Steps 5-8 for one parameter set. ``fitted``: leaves segmented and fitted from the images
+    (:func:`reference_impl.leaves.segment_and_fit`, their mesh and Leaf instances) replace step 6's procedural
+    leaves."""
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     ell = prior.internode_length
@@ -321,14 +324,19 @@ def model(prep: Prepared, prior: SpeciesPrior, params: GuoParams, rng: np.random
     timings["growth"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    foliage = _leaves(g.positions, g.parents, g.radii, g.lateral, prior.leaves or generic_leaves(), rng,
-                      params.leaf_tip_internodes)
-    leaf_mesh, leaves, turned = foliage.mesh, foliage.leaves, 0
-    cloud_tree = cKDTree(prep.plant)
-    if params.leaf_fit:
-        leaf_mesh, leaves, turned = orient_leaves(foliage, cloud_tree, prep.plant)
-    leaf_mesh, leaves, dropped = select_leaves(leaf_mesh, leaves, cloud_tree, prep.spacing,
-                                               support=params.leaf_support, dedup=params.leaf_dedup)
+    if fitted is None:
+        foliage = _leaves(g.positions, g.parents, g.radii, g.lateral, prior.leaves or generic_leaves(), rng,
+                          params.leaf_tip_internodes)
+        placed = len(foliage.leaves)
+        leaf_mesh, leaves, turned = foliage.mesh, foliage.leaves, 0
+        cloud_tree = cKDTree(prep.plant)
+        if params.leaf_fit:
+            leaf_mesh, leaves, turned = orient_leaves(foliage, cloud_tree, prep.plant)
+        leaf_mesh, leaves, dropped = select_leaves(leaf_mesh, leaves, cloud_tree, prep.spacing,
+                                                   support=params.leaf_support, dedup=params.leaf_dedup)
+    else:
+        leaf_mesh, leaves = fitted
+        placed, turned, dropped = 0, len(leaves), {"unsupported": 0, "duplicates": 0}
     timings["leaves"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -352,7 +360,7 @@ def model(prep: Prepared, prior: SpeciesPrior, params: GuoParams, rng: np.random
     info = {
         "iterations": g.iterations, "growth_nodes": len(g.positions), "shed_nodes": g.shed_nodes,
         "markers_left": g.markers_left, "nodes": len(pos), "leaves": len(leaves), "leaves_fitted": turned,
-        "leaves_placed": len(foliage.leaves), "leaves_unsupported": dropped["unsupported"],
+        "leaves_placed": placed, "leaf_source": "procedural" if fitted is None else "segment", "leaves_unsupported": dropped["unsupported"],
         "leaves_duplicate": dropped["duplicates"],
         "internode_length": ell, "roll_angle": prior.roll_angle, "branching_angle": prior.branching_angle,
         "diameter_coefficient": prior.diameter_coefficient, "timings": timings,
@@ -362,9 +370,10 @@ def model(prep: Prepared, prior: SpeciesPrior, params: GuoParams, rng: np.random
 
 
 def reconstruct_guo(points: np.ndarray, rng: np.random.Generator, params: GuoParams = GuoParams(),
-                    prior: SpeciesPrior = GENERIC_PRIOR) -> GuoResult:
-    """One reconstruction (no analysis-by-synthesis): :func:`prepare` then :func:`model`."""
+                    prior: SpeciesPrior = GENERIC_PRIOR, fitted: tuple[TriMesh, list[Leaf]] | None = None
+                    ) -> GuoResult:
+    """One reconstruction (no analysis-by-synthesis): :func:`prepare` then :func:`model` (``fitted``: see there)."""
     prep = prepare(points, rng, params, prior)
-    res = model(prep, prior, params, rng)
+    res = model(prep, prior, params, rng, fitted)
     return GuoResult(res.skeleton, res.mesh, res.leaves, {"prepare": prep.info} | res.info)
 

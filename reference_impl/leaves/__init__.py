@@ -15,23 +15,55 @@ from pathlib import Path
 from .ellipse import Ellipse, khachiyan, min_volume_ellipse, min_volume_ellipses
 from .fit import LeafFit, LeafModel, fit_leaf, uv_mapping
 from .params import LeafParams
-from .pipeline import SKIP_REASONS, LeafFitResult, load_depth_dir, segment_and_fit, write_leaves
+from .pipeline import (SKIP_REASONS, LeafFitResult, fitted_mesh, load_depth_dir, segment_and_fit, views_folder,
+                       write_leaves)
 
 __all__ = [
-    "Leaves", "LeafParams", "LeafFitResult", "LeafFit", "LeafModel", "Ellipse", "SKIP_REASONS", "segment_and_fit",
+    "Leaves", "leaves_from_capture", "fitted_mesh", "LeafParams", "LeafFitResult", "LeafFit", "LeafModel", "Ellipse", "SKIP_REASONS", "segment_and_fit",
     "write_leaves", "load_depth_dir", "fit_leaf", "uv_mapping", "khachiyan", "min_volume_ellipse",
     "min_volume_ellipses",
 ]
+
+
+def leaves_from_capture(capture_dir: Path, *, depth: str | Path = "mvs", seed: int, species: str | None = None,
+                        params: LeafParams = LeafParams()) -> LeafFitResult:
+    """:func:`segment_and_fit` on a capture folder (holding ``views/``) with the depth source named by ``depth``:
+
+    - ``"mvs"``: ``capture_dir/depth`` when it exists (the mvs stage's filtered maps, ``write_depth``, which the
+      runner links next to the cloud), else the mvs stage's depth maps estimated here with its default parameters;
+    - ``"oracle"``: the capture's exact depth (ground truth: upper bounds only);
+    - a folder of per-view maps (``NNNN.npz`` with key ``depth``, or ``NNNN.npy``).
+
+    The species hint, when given, sets the leaf length (``leaves.length`` of the species) that scales delta_plane.
+    """
+    hint = None
+    if species is not None:
+        from plantbench.species import load_species
+
+        hint = float(load_species(species).leaves.length)
+    capture_dir = Path(capture_dir)
+    views = views_folder(capture_dir)
+    if depth == "oracle":
+        return segment_and_fit(views, oracle_depth=True, leaf_length_hint=hint, seed=seed, params=params)
+    if depth == "mvs" and (capture_dir / "depth").is_dir():
+        depth = capture_dir / "depth"
+    if depth == "mvs":
+        from reference_impl.mvs import MVSParams, depth_maps, filter_depth_maps, load_views
+
+        images, cameras, _ = load_views(capture_dir)
+        mvs_params = MVSParams()
+        maps, _, _ = depth_maps(images, cameras, mvs_params, seed=seed)
+        depths, _ = filter_depth_maps(maps, images, cameras, mvs_params)
+        return segment_and_fit(views, depths, leaf_length_hint=hint, seed=seed, params=params)
+    return segment_and_fit(views, depth_dir=depth, leaf_length_hint=hint, seed=seed, params=params)
 
 
 class Leaves:
     """Leaf instances from a view capture (seed 001): writes ``leaves.json``, ``points.ply`` (points on the fitted
     leaf surfaces, with ``leaf_id``) and ``leaves_stats.json`` (skips per reason, timings).
 
-    Options: ``depth`` = ``"mvs"`` (default: the mvs stage's depth maps, estimated here with its default
-    parameters), ``"oracle"`` (the capture's exact depth: ground truth, for upper bounds) or a folder of per-view
-    maps (``out/depth`` of an ``mvs`` run with ``write_depth``); any :class:`LeafParams` field. The species hint,
-    when given, sets the leaf length (``leaves.length`` of the species) that scales delta_plane.
+    Options: ``depth`` (see :func:`leaves_from_capture`: ``"mvs"``, the default, ``"oracle"`` or a folder of
+    per-view maps) and any :class:`LeafParams` field.
     """
 
     name = "leaves"
@@ -40,23 +72,6 @@ class Leaves:
     def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None,
                     **options) -> None:
         depth = options.pop("depth", "mvs")
-        params = LeafParams.from_options(options)
-        hint = None
-        if species is not None:
-            from plantbench.species import load_species
-
-            hint = float(load_species(species).leaves.length)
-        views = Path(capture_dir) / "views"
-        if depth == "oracle":
-            result = segment_and_fit(views, oracle_depth=True, leaf_length_hint=hint, seed=seed, params=params)
-        elif depth == "mvs":
-            from reference_impl.mvs import MVSParams, depth_maps, filter_depth_maps, load_views
-
-            images, cameras, _ = load_views(capture_dir)
-            mvs_params = MVSParams()
-            maps, _, _ = depth_maps(images, cameras, mvs_params, seed=seed)
-            depths, _ = filter_depth_maps(maps, images, cameras, mvs_params)
-            result = segment_and_fit(views, depths, leaf_length_hint=hint, seed=seed, params=params)
-        else:
-            result = segment_and_fit(views, depth_dir=depth, leaf_length_hint=hint, seed=seed, params=params)
+        result = leaves_from_capture(capture_dir, depth=depth, seed=seed, species=species,
+                                     params=LeafParams.from_options(options))
         write_leaves(out_dir, result)

@@ -61,6 +61,9 @@ class LeafFit:
     width: float
     rms: float
     iterations: int
+    reset: bool = False
+    """True when the fitted blade came out wider than ``max_width_factor`` x the enclosing ellipse (the silhouette
+    ran away where no points constrain it) and the leaf kept the ellipse-shaped start instead."""
 
     def surface(self, nu: int = 9, nv: int = 17) -> np.ndarray:
         """(nu * nv, 3) world points on the fitted surface, a (u, v) grid."""
@@ -410,8 +413,11 @@ def fit_leaves(clouds: list[np.ndarray], *, params: LeafParams = LeafParams(), r
         tr = np.eye(4)
         tr[:3, :3] = frame.T @ m3.T
         tr[:3, 3] = c + frame.T @ np.array([p.base[0], p.base[1], 0.0])
-        width = float(2 * max_half_width(p.omega) * p.length)
-        out[p.leaf] = LeafFit(p.omega, tr, p.length, width, p.rms, p.iterations) if width > 0 else "fit_failed"
+        b_unit = p.ellipse.semi_axes[1]
+        reset = not max_half_width(p.omega) <= params.max_width_factor * b_unit
+        omega = initial_params(b_unit) if reset else p.omega
+        width = float(2 * max_half_width(omega) * p.length)
+        out[p.leaf] = LeafFit(omega, tr, p.length, width, p.rms, p.iterations, reset) if width > 0 else "fit_failed"
     return out
 
 

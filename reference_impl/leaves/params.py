@@ -76,6 +76,11 @@ class LeafParams:
     """'batched' (:func:`reference_impl.leaves.fit.lm_batch`: every leaf of a plant in one vectorised LM) or
     'scipy' (``scipy.optimize.least_squares(method="lm")``, MINPACK, one leaf at a time: same energy, about an
     order of magnitude slower on a plant's hundreds of leaves)."""
+    max_width_factor: float = 2.0
+    """A fitted blade whose half-width exceeds this many times the semi-minor axis of its points' enclosing ellipse
+    has diverged (sparse multi-view-stereo leaves leave parts of the silhouette unconstrained: on a 20-view laurel,
+    5 % of the fits came out wider than 19 cm for 3 cm leaves); it keeps the ellipse-shaped start (counted as
+    ``fits_reset``). [S]"""
     fit_tolerance: float = 1e-3
     """Alternation stops when the weighted RMS residual (leaf lengths) changes by less than this."""
     occlusion_weights: bool = True

@@ -39,7 +39,7 @@ from .params import LeafParams
 from .refine import refine_candidates
 from .segment import Candidate, ViewSegments, backproject, candidate_confidence, segment_view
 
-__all__ = ["LeafFitResult", "segment_and_fit", "write_leaves", "load_depth_dir", "views_folder"]
+__all__ = ["LeafFitResult", "segment_and_fit", "write_leaves", "load_depth_dir", "views_folder", "fitted_mesh"]
 
 SKIP_REASONS = ("view_without_depth", "superpixel_few_points", "superpixel_no_plane", "candidate_few_points",
                 "degenerate_ellipse", "duplicate", "few_points_after_icp", "fit_failed")
@@ -277,7 +277,24 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
     timings["total"] = time.perf_counter() - t_all
     stats["timings"] = timings
     stats["fit_iterations_median"] = float(np.median([f.iterations for f in fits])) if fits else 0.0
+    stats["fits_reset"] = int(sum(f.reset for f in fits))
     return LeafFitResult(leaves, fits, leaf_pts, skipped, stats)
+
+
+def fitted_mesh(result: LeafFitResult, resolution: tuple[int, int] = (4, 8)):
+    """The fitted leaves as one triangle mesh in world coordinates (the generator's tessellation,
+    :func:`plantbench.generate.leaf.tessellate_many`, at each leaf's transform), blades in leaf order."""
+    from plantbench.generate.leaf import tessellate_many
+    from plantbench.plant import TriMesh
+
+    if not result.fits:
+        return TriMesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
+    verts, faces = tessellate_many(np.stack([f.omega for f in result.fits]),
+                                   np.array([f.length for f in result.fits]), resolution)
+    tr = np.stack([f.transform for f in result.fits])
+    world = np.einsum("kij,kmj->kmi", tr[:, :3, :3], verts) + tr[:, None, :3, 3]
+    m = verts.shape[1]
+    return TriMesh(world.reshape(-1, 3), (faces[None] + m * np.arange(len(tr))[:, None, None]).reshape(-1, 3))
 
 
 def write_leaves(out_dir: str | os.PathLike, result: LeafFitResult, *, samples_per_leaf: int = 153) -> None:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from plantbench.errors import InputError, NotAvailableError
+from plantbench.errors import InputError
 from plantbench.io.plantio import read_reconstruction
 from plantbench.io.ply import write_points
 from plantbench.plant import Skeleton
@@ -99,8 +99,10 @@ def test_bad_input(tmp_path):
         Guo().reconstruct(tmp_path, tmp_path / "o", seed=0, species="mapel")
     with pytest.raises(InputError, match="views"):
         Guo().reconstruct(tmp_path, tmp_path / "o", seed=0, candidates=2)
-    with pytest.raises(NotAvailableError):
+    with pytest.raises(InputError, match="cameras.json"):  # leaves from images need a view capture
         Guo().reconstruct(tmp_path, tmp_path / "o", seed=0, leaves="segment")
+    with pytest.raises(InputError, match="segment"):
+        Guo().reconstruct(tmp_path, tmp_path / "o", seed=0, leaf_depth="oracle")
     flat = np.c_[np.random.default_rng(0).random((100, 2)), np.zeros(100)]
     write_points(tmp_path / "points.ply", flat)
     with pytest.raises(InputError):

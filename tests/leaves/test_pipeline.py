@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from plantbench.cameras import read_cameras
 from plantbench.errors import InputError
 from plantbench.io.plantio import read_reconstruction
 from reference_impl.leaves import LeafParams, Leaves, segment_and_fit, write_leaves
@@ -97,3 +98,33 @@ def test_method_runs_alone_with_oracle_depth(leaf_scene, tmp_path):
                        reference_leaf_length=0.1, delta_plane=0.02)
     rec = read_reconstruction(tmp_path / "out")
     assert rec.leaves is not None and len(rec.leaves) >= len(truth) - 1
+
+
+def test_guo_takes_its_leaves_from_the_images(leaf_scene, tmp_path):
+    """guo with leaves='segment': the leaf stage's fitted leaves (from capture_dir/depth, as the runner links the mvs
+    stage's maps) become guo's leaves.json and the leaf part of its mesh, one per true leaf, on the true blades."""
+    from scipy.spatial import cKDTree
+
+    from plantbench.io.ply import write_points
+    from reference_impl.guo import Guo
+    from reference_impl.leaves.segment import backproject
+
+    from .conftest import surface_samples
+
+    views, depths, _, truth = leaf_scene
+    cams, _ = read_cameras(views / "cameras.json")
+    case = views.parent
+    (case / "depth").mkdir()
+    for i, d in enumerate(depths):
+        np.savez_compressed(case / "depth" / f"{i:04d}.npz", depth=d.astype(np.float32))
+    leaf_pts = np.concatenate([backproject(d, c)[0] for d, c in zip(depths, cams, strict=True)])
+    stem = np.c_[np.zeros(400), np.zeros(400), np.linspace(-0.4, leaf_pts[:, 2].min(), 400)]
+    write_points(case / "points.ply", np.concatenate([stem, leaf_pts[::5]]))
+    Guo().reconstruct(case, tmp_path / "out", seed=0, leaves="segment", leaf__ground=False,
+                      leaf__reference_leaf_length=0.1)
+    rec = read_reconstruction(tmp_path / "out")
+    assert len(rec.leaves) == len(truth)
+    blades = np.concatenate([surface_samples(s.vector(), length, tr) for s, length, tr in truth])
+    # the fitted blades are in the mesh: each truth blade sample has a mesh vertex within 1 cm (a tenth of a leaf)
+    assert np.percentile(cKDTree(rec.mesh.vertices).query(blades)[0], 90) < 0.01
+    assert all(0 <= lf.node < len(rec.skeleton.positions) for lf in rec.leaves)

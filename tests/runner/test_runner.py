@@ -8,6 +8,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -117,3 +118,29 @@ def test_unknown_species_fails_before_any_work(tmp_path):
     assert not (tmp_path / "runs" / "cache").exists()
 
 
+
+
+def test_points_input_links_the_mvs_depth_maps(tmp_path):
+    """A 'points' method's input folder holds the mvs cloud, the capture's views and, when the mvs stage wrote them
+    (write_depth), its depth maps (guo's leaves='segment' reads them)."""
+    from plantbench.runner.worker import _points, job_folder
+
+    cache = tmp_path / "cache"
+    case = job_folder(cache, "capture", "c0")
+    (case / "views").mkdir(parents=True)
+    recon = job_folder(cache, "method", "m0")
+    (recon / "depth").mkdir(parents=True)
+    np.savez_compressed(recon / "depth" / "0000.npz", depth=np.ones((2, 2), np.float32))
+    (recon / "points.ply").write_bytes(b"ply\n")
+    for with_depth in (True, False):
+        folder = tmp_path / f"in{with_depth}"
+        folder.mkdir()
+        if not with_depth:
+            import shutil
+
+            shutil.rmtree(recon / "depth")
+        _points(cache, folder, {"case": "c0", "source": "views", "recon": "m0"})
+        assert (folder / "views").is_dir() and (folder / "points.ply").read_bytes() == b"ply\n"
+        assert (folder / "depth").exists() == with_depth
+        if with_depth:
+            assert np.load(folder / "depth" / "0000.npz")["depth"].shape == (2, 2)
