@@ -103,9 +103,13 @@ _BINOM = {2: np.array([1.0, 2.0, 1.0]), 3: np.array([1.0, 3.0, 3.0, 1.0]), 4: np
 
 def _bernstein(t: np.ndarray, degree: int) -> np.ndarray:
     """(..., degree + 1) Bernstein basis at ``t`` (...)."""
-    t = np.asarray(t, dtype=np.float64)[..., None]
-    k = np.arange(degree + 1)
-    return _BINOM[degree] * t**k * (1.0 - t) ** (degree - k)
+    t = np.asarray(t, dtype=np.float64)
+    s = 1.0 - t
+    tp, sp = [np.ones_like(t)], [np.ones_like(t)]
+    for _ in range(degree):  # powers by products: float ** int-array was the leaf fit's largest single cost
+        tp.append(tp[-1] * t)
+        sp.append(sp[-1] * s)
+    return _BINOM[degree] * np.stack([tp[k] * sp[degree - k] for k in range(degree + 1)], axis=-1)
 
 
 def _bernstein_deriv(t: np.ndarray, degree: int) -> np.ndarray:

@@ -403,21 +403,27 @@ def fit_leaves(clouds: list[np.ndarray], *, params: LeafParams = LeafParams(), r
     chosen = list(best.values())
     _alternate(chosen, params, params.fit_iterations)
     frames = {i: (c, frame) for i, c, frame, _ in prepared}
+    ok = [p for p in chosen if np.all(np.isfinite(p.omega)) and np.isfinite(p.rms)]
     for p in chosen:
-        c, frame = frames[p.leaf]
         if not (np.all(np.isfinite(p.omega)) and np.isfinite(p.rms)):
             out[p.leaf] = "fit_failed"
-            continue
+    if not ok:
+        return out
+    b_unit = np.array([p.ellipse.semi_axes[1] for p in ok])
+    omegas = np.stack([p.omega for p in ok])
+    reset = ~(max_half_width(omegas) <= params.max_width_factor * b_unit)
+    for i in np.flatnonzero(reset):
+        omegas[i] = initial_params(b_unit[i])
+    widths = 2 * max_half_width(omegas) * np.array([p.length for p in ok])
+    for p, omega, width, r in zip(ok, omegas, widths, reset, strict=True):
+        c, frame = frames[p.leaf]
         m3 = np.eye(3)
         m3[:2, :2] = p.m2
         tr = np.eye(4)
         tr[:3, :3] = frame.T @ m3.T
         tr[:3, 3] = c + frame.T @ np.array([p.base[0], p.base[1], 0.0])
-        b_unit = p.ellipse.semi_axes[1]
-        reset = not max_half_width(p.omega) <= params.max_width_factor * b_unit
-        omega = initial_params(b_unit) if reset else p.omega
-        width = float(2 * max_half_width(omega) * p.length)
-        out[p.leaf] = LeafFit(omega, tr, p.length, width, p.rms, p.iterations, reset) if width > 0 else "fit_failed"
+        out[p.leaf] = (LeafFit(omega, tr, p.length, float(width), p.rms, p.iterations, bool(r)) if width > 0
+                       else "fit_failed")
     return out
 
 

@@ -70,8 +70,11 @@ class LeafParams:
     """Points per leaf used by the fit (a seeded subsample of larger clouds)."""
     fit_iterations: int = 15
     """Most alternations of UV mapping and Levenberg-Marquardt (the paper converges in 4-15)."""
-    lm_evaluations: int = 10
-    """Levenberg-Marquardt steps between two UV mappings (scipy backend: most residual evaluations)."""
+    lm_evaluations: int = 3
+    """Levenberg-Marquardt steps between two UV mappings (scipy backend: most residual evaluations). The mapping
+    moves with the surface, so long solves between mappings buy little: 30 %-occluded test leaves come out the
+    same with 3, 5 or 10 (mean surface distance 1.28 % of the length over 20), and 1500 laurel leaves fitted in
+    12.3 s with 3 against 21.5 s with 10 (median weighted RMS 0.0172 both). [S]"""
     lm_backend: str = "batched"
     """'batched' (:func:`reference_impl.leaves.fit.lm_batch`: every leaf of a plant in one vectorised LM) or
     'scipy' (``scipy.optimize.least_squares(method="lm")``, MINPACK, one leaf at a time: same energy, about an

@@ -75,6 +75,14 @@ def _segment_starts(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
 def _plane_ls(points: np.ndarray, seg: np.ndarray, weight: np.ndarray, nseg: int
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Least-squares plane per segment over weighted points: centroid (s, 3), unit normal (s, 3), weight sum (s,)."""
+    c, vec, wsum = _segment_pca(points, seg, weight, nseg)
+    return c, vec[:, :, 0], wsum
+
+
+def _segment_pca(points: np.ndarray, seg: np.ndarray, weight: np.ndarray, nseg: int
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Weighted PCA per segment: centroid (s, 3), principal axes as columns in increasing variance (s, 3, 3) and
+    weight sum (s,)."""
     wsum = np.bincount(seg, weight, nseg)
     c = np.stack([np.bincount(seg, weight * points[:, k], nseg) for k in range(3)], 1) / np.maximum(wsum, 1e-12)[:, None]
     d = points - c[seg]
@@ -83,7 +91,7 @@ def _plane_ls(points: np.ndarray, seg: np.ndarray, weight: np.ndarray, nseg: int
         for j in range(i, 3):
             cov[:, i, j] = cov[:, j, i] = np.bincount(seg, weight * d[:, i] * d[:, j], nseg)
     _, vec = np.linalg.eigh(cov + 1e-18 * np.eye(3))
-    return c, vec[:, :, 0], wsum
+    return c, vec, wsum
 
 
 def fit_planes(points: np.ndarray, seg: np.ndarray, nseg: int, *, delta: float, params: LeafParams,
@@ -298,15 +306,16 @@ def candidate_confidence(points: np.ndarray, groups: list[np.ndarray], areas: np
     """
     from .ellipse import min_volume_ellipses
 
-    frames, cents, flat2 = [], [], []
-    for g in groups:
-        p = points[g]
-        c = p.mean(0)
-        _, _, vt = np.linalg.svd(p - c, full_matrices=False)
-        e3 = np.cross(vt[0], vt[1])
-        frames.append(np.stack([vt[0], vt[1], e3]))
-        cents.append(c)
-        flat2.append((p - c) @ np.stack([vt[0], vt[1]]).T)
+    if not groups:
+        return []
+    sizes = np.array([len(g) for g in groups])
+    flat = np.concatenate(groups)
+    seg = np.repeat(np.arange(len(groups)), sizes)
+    cents, vec, _ = _segment_pca(points[flat], seg, np.ones(len(flat)), len(groups))  # all candidates at once
+    e1, e2 = vec[:, :, 2], vec[:, :, 1]  # largest, middle variance
+    frames = np.stack([e1, e2, np.cross(e1, e2)], axis=1)  # rows, right-handed
+    local = np.einsum("nij,nj->ni", frames[seg, :2], points[flat] - cents[seg])
+    flat2 = np.split(local, np.cumsum(sizes)[:-1])
     ells = min_volume_ellipses(flat2)
     out: list[Candidate | None] = []
     for g, f, c, e, a, v in zip(groups, frames, cents, ells, areas, views, strict=True):
