@@ -9,9 +9,11 @@ Eq. 5-7, 9, shedding), :mod:`.refine` (collapse, Hermite smoothing), :mod:`.pipe
 
 Options (a suite's ``[method_options.guo]``): every :class:`~reference_impl.guo.params.GuoParams` field by name,
 plus ``prior`` (True: the species hint's parameters; False: generic defaults, to measure what the prior buys) and
-``leaves`` ('procedural', the default: leaves placed per the species library, turned onto the cloud and kept where
-the cloud supports them; 'segment': the leaves that :mod:`reference_impl.leaves` segments and fits from the views,
-seed 001, which needs ``capture_dir/views``), ``leaf_depth`` (with 'segment': the depth maps the leaves are
+``leaves`` ('auto', the default: 'combined' when ``capture_dir/depth`` holds the mvs stage's depth maps, as the
+runner provides for view captures, else 'procedural'; 'procedural': leaves placed per the species library, turned
+onto the cloud and kept where the cloud supports them; 'segment': the leaves that :mod:`reference_impl.leaves` segments and fits from the views,
+seed 001, which needs ``capture_dir/views``; 'combined': those fitted leaves plus the procedural leaves they do not
+cover), ``leaf_depth`` (with 'segment': the depth maps the leaves are
 segmented on, 'mvs' (default: ``capture_dir/depth``, the mvs stage's maps when it ran with ``write_depth``, else
 estimated) or 'oracle' (the capture's exact depth: an upper bound)) and ``leaf__NAME`` for any
 :class:`~reference_impl.leaves.LeafParams` field. ``candidates=k`` (k > 1) turns on analysis-by-synthesis, which
@@ -54,13 +56,15 @@ class Guo:
         use_prior = options.pop("prior", True)
         if not isinstance(use_prior, bool):
             raise InputError(f"guo: prior must be true or false, got {use_prior!r}")
-        leaves = options.pop("leaves", "procedural")
-        if leaves not in ("procedural", "segment"):
-            raise InputError(f"guo: leaves must be 'procedural' or 'segment', got {leaves!r}")
+        leaves = options.pop("leaves", "auto")
+        if leaves not in ("auto", "procedural", "segment", "combined"):
+            raise InputError(f"guo: leaves must be 'auto', 'procedural', 'segment' or 'combined', got {leaves!r}")
         leaf_depth = options.pop("leaf_depth", "mvs")
+        if leaves == "auto":
+            leaves = "combined" if (Path(capture_dir) / "depth").is_dir() or leaf_depth != "mvs" else "procedural"
         leaf_options = {k[len("leaf__"):]: options.pop(k) for k in list(options) if k.startswith("leaf__")}
         if leaves == "procedural" and (leaf_options or leaf_depth != "mvs"):
-            raise InputError("guo: leaf_depth and leaf__* options need leaves='segment'")
+            raise InputError("guo: leaf_depth and leaf__* options need leaves='segment' or 'combined'")
         if leaf_depth not in ("mvs", "oracle"):
             raise InputError(f"guo: leaf_depth must be 'mvs' or 'oracle', got {leaf_depth!r}")
         params = params_from_options(options)
@@ -68,7 +72,7 @@ class Guo:
         points = load_points(capture_dir)
         rng = seeded_rng(seed, "guo")
         fitted, leaf_stats = None, None
-        if leaves == "segment":
+        if leaves != "procedural":
             from reference_impl.leaves import LeafParams, fitted_mesh, leaves_from_capture
 
             found = leaves_from_capture(capture_dir, depth=leaf_depth, seed=seed, species=species,
@@ -79,9 +83,10 @@ class Guo:
             from reference_impl.guo.abs import analysis_by_synthesis, load_input_views
 
             cameras, images = load_input_views(capture_dir)
-            result = analysis_by_synthesis(points, cameras, images, rng, params, prior, fitted)
+            result = analysis_by_synthesis(points, cameras, images, rng, params, prior, fitted,
+                                           leaves == "combined")
         else:
-            result = reconstruct_guo(points, rng, params, prior, fitted)
+            result = reconstruct_guo(points, rng, params, prior, fitted, leaves == "combined")
         if leaf_stats is not None:
             result.info["leaf_segmentation"] = leaf_stats
         write_reconstruction(out_dir, result.skeleton, mesh=result.mesh, leaves=result.leaves)

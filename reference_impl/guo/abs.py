@@ -131,7 +131,7 @@ def prior_probability(candidate: SpeciesPrior, prior: SpeciesPrior, jitter: floa
 
 def analysis_by_synthesis(points: np.ndarray, cameras: list[Camera], images: list[np.ndarray],
                           rng: np.random.Generator, params: GuoParams, prior: SpeciesPrior,
-                          fitted=None) -> GuoResult:
+                          fitted=None, merge: bool = False) -> GuoResult:
     """Grow ``params.candidates`` candidates and keep the one maximising p(M) (1 - reprojection error).
     ``fitted``: image-fitted leaves (mesh, Leaf list) that replace the procedural ones, as in :func:`model`."""
     from plantbench.metrics.reprojection import render_silhouettes, reprojection_error
@@ -146,7 +146,7 @@ def analysis_by_synthesis(points: np.ndarray, cameras: list[Camera], images: lis
     scores, errors, priors = [], [], []
     best, best_score = None, -np.inf
     for i, cand in enumerate(cands):
-        res = model(prep, cand, params, np.random.default_rng(rng.integers(2**63)), fitted)
+        res = model(prep, cand, params, np.random.default_rng(rng.integers(2**63)), fitted, merge)
         err = reprojection_error(masks, render_silhouettes(res.mesh, cameras)).error
         err = 1.0 if err is None else float(err)
         pm = prior_probability(cand, prior, params.candidate_jitter)

@@ -46,7 +46,8 @@ from reference_impl.guo.refine import collapse, smooth
 from reference_impl.guo.roots import density_roots, root_axes_and_radii
 from reference_impl.guo.weights import eq8_weights
 
-__all__ = ["Prepared", "GuoResult", "prepare", "model", "reconstruct_guo", "generic_leaves", "orient_leaves"]
+__all__ = ["Prepared", "GuoResult", "prepare", "model", "reconstruct_guo", "generic_leaves", "orient_leaves",
+           "select_leaves", "merge_leaves"]
 
 GENERIC_LEAF_LENGTH = 0.06
 """Blade length of the generic leaf (no species prior), metres [S: a mid-sized broadleaf]."""
@@ -279,12 +280,10 @@ def select_leaves(mesh: TriMesh, leaves: list[Leaf], cloud_tree: cKDTree, spacin
         return mesh, leaves, counts
     verts = mesh.vertices
     q, blade = _blades(verts, m)
-    resid = cloud_tree.query(blade.reshape(-1, 3), k=1, workers=-1)[0].reshape(m, q).mean(axis=1)
     length = np.array([lf.length for lf in leaves])
-    keep = np.ones(m, bool)
-    if support > 0:
-        keep = resid <= support * np.maximum(spacing, LEAF_SUPPORT_LENGTH * length)
-        counts["unsupported"] = int(m - keep.sum())
+    resid, supported = leaf_support(blade, length, cloud_tree, spacing, support)
+    keep = supported
+    counts["unsupported"] = int(m - keep.sum())
     if dedup and keep.any():
         centre = blade.mean(axis=1)
         cand = np.flatnonzero(keep)
@@ -303,20 +302,77 @@ def select_leaves(mesh: TriMesh, leaves: list[Leaf], cloud_tree: cKDTree, spacin
         counts["duplicates"] = int(len(cand) - taken.sum())
     if keep.all():
         return mesh, leaves, counts
+    new_mesh, kept = _subset_foliage(mesh, leaves, keep)
+    return new_mesh, kept, counts
+
+
+def leaf_support(blade: np.ndarray, length: np.ndarray, cloud_tree: cKDTree, spacing: float, support: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Support residual of each blade (mean distance of its (m, q, 3) vertices to the cloud) and whether it is at most
+    ``support`` x max(``spacing``, :data:`LEAF_SUPPORT_LENGTH` x the leaf's length) (``support`` 0: all kept)."""
+    m, q = blade.shape[:2]
+    resid = cloud_tree.query(blade.reshape(-1, 3), k=1, workers=-1)[0].reshape(m, q).mean(axis=1)
+    if support <= 0:
+        return resid, np.ones(m, bool)
+    return resid, resid <= support * np.maximum(spacing, LEAF_SUPPORT_LENGTH * length)
+
+
+def supported_fitted(fitted: tuple[TriMesh, list[Leaf]], cloud_tree: cKDTree, spacing: float, support: float
+                     ) -> tuple[tuple[TriMesh, list[Leaf]], int]:
+    """The image-fitted leaves (mesh of equal blade blocks, as reference_impl.leaves.fitted_mesh writes it) that
+    the plant cloud supports (:func:`leaf_support`): a leaf fitted to ground or background depth that the
+    multi-view fusion rejected lies off the cloud. Returns them and how many were dropped."""
+    mesh, leaves = fitted
+    m = len(leaves)
+    if m == 0:
+        return fitted, 0
+    q = len(mesh.vertices) // m
+    _, keep = leaf_support(mesh.vertices.reshape(m, q, 3), np.array([lf.length for lf in leaves]), cloud_tree,
+                           spacing, support)
+    if keep.all():
+        return fitted, 0
+    vkeep = np.repeat(keep, q)
+    remap = np.cumsum(vkeep) - 1
+    faces = remap[mesh.faces[vkeep[mesh.faces].all(axis=1)]]
+    kept = [replace(leaves[i], id=j) for j, i in enumerate(np.flatnonzero(keep))]
+    return (TriMesh(mesh.vertices[vkeep], faces), kept), int(m - keep.sum())
+
+
+def _subset_foliage(mesh: TriMesh, leaves: list[Leaf], keep: np.ndarray) -> tuple[TriMesh, list[Leaf]]:
+    """The leaves with ``keep`` True (renumbered) and their part of a place_leaves-layout foliage mesh."""
+    m = len(leaves)
+    q, _ = _blades(mesh.vertices, m)
     owner = np.concatenate([np.repeat(np.arange(m), q), np.repeat(np.arange(m), 6)])
     vkeep = keep[owner]
     remap = np.cumsum(vkeep) - 1
     faces = mesh.faces[vkeep[mesh.faces].all(axis=1)]
-    new_verts, new_faces = verts[vkeep], remap[faces]
     kept = [replace(leaves[i], id=j) for j, i in enumerate(np.flatnonzero(keep))]
-    return TriMesh(new_verts, new_faces), kept, counts
+    return TriMesh(mesh.vertices[vkeep], remap[faces]), kept
+
+
+def merge_leaves(mesh: TriMesh, leaves: list[Leaf], fitted: tuple[TriMesh, list[Leaf]]
+                 ) -> tuple[TriMesh, list[Leaf], int]:
+    """Image-fitted leaves (``fitted``: mesh and leaves) plus the procedural leaves that none of them covers (blade
+    centre farther than half the procedural leaf's length from every fitted leaf's): what the cameras resolved as a
+    leaf is taken from the images, the rest of the crown keeps the species' leaves. Returns the mesh (fitted blades
+    first), the leaves (renumbered) and how many procedural leaves were replaced."""
+    fit_mesh, fit_leaves = fitted
+    if not leaves or not fit_leaves:
+        keep = np.ones(len(leaves), bool)
+    else:
+        _, blade = _blades(mesh.vertices, len(leaves))
+        d, _ = cKDTree(np.array([lf.centroid for lf in fit_leaves])).query(blade.mean(axis=1), k=1)
+        keep = d > 0.5 * np.array([lf.length for lf in leaves])
+    proc_mesh, proc = _subset_foliage(mesh, leaves, keep) if len(leaves) else (mesh, leaves)
+    out = [replace(lf, id=i) for i, lf in enumerate(list(fit_leaves) + proc)]
+    return TriMesh.concatenate([fit_mesh, proc_mesh]), out, int(len(leaves) - keep.sum())
 
 
 def model(prep: Prepared, prior: SpeciesPrior, params: GuoParams, rng: np.random.Generator,
-          fitted: tuple[TriMesh, list[Leaf]] | None = None) -> GuoResult:
+          fitted: tuple[TriMesh, list[Leaf]] | None = None, merge: bool = False) -> GuoResult:
     """Steps 5-8 for one parameter set. ``fitted``: leaves segmented and fitted from the images
     (:func:`reference_impl.leaves.segment_and_fit`, their mesh and Leaf instances) replace step 6's procedural
-    leaves."""
+    leaves, or with ``merge`` replace those they cover (:func:`merge_leaves`)."""
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     ell = prior.internode_length
@@ -324,19 +380,23 @@ def model(prep: Prepared, prior: SpeciesPrior, params: GuoParams, rng: np.random
     timings["growth"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    if fitted is None:
+    placed, turned, dropped, replaced_, off_cloud = 0, 0, {"unsupported": 0, "duplicates": 0}, 0, 0
+    cloud_tree = cKDTree(prep.plant)
+    if fitted is not None:
+        fitted, off_cloud = supported_fitted(fitted, cloud_tree, prep.spacing, params.leaf_support)
+    if fitted is None or merge:
         foliage = _leaves(g.positions, g.parents, g.radii, g.lateral, prior.leaves or generic_leaves(), rng,
                           params.leaf_tip_internodes)
         placed = len(foliage.leaves)
-        leaf_mesh, leaves, turned = foliage.mesh, foliage.leaves, 0
-        cloud_tree = cKDTree(prep.plant)
+        leaf_mesh, leaves = foliage.mesh, foliage.leaves
         if params.leaf_fit:
             leaf_mesh, leaves, turned = orient_leaves(foliage, cloud_tree, prep.plant)
         leaf_mesh, leaves, dropped = select_leaves(leaf_mesh, leaves, cloud_tree, prep.spacing,
                                                    support=params.leaf_support, dedup=params.leaf_dedup)
+        if fitted is not None:
+            leaf_mesh, leaves, replaced_ = merge_leaves(leaf_mesh, leaves, fitted)
     else:
         leaf_mesh, leaves = fitted
-        placed, turned, dropped = 0, len(leaves), {"unsupported": 0, "duplicates": 0}
     timings["leaves"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -360,7 +420,8 @@ def model(prep: Prepared, prior: SpeciesPrior, params: GuoParams, rng: np.random
     info = {
         "iterations": g.iterations, "growth_nodes": len(g.positions), "shed_nodes": g.shed_nodes,
         "markers_left": g.markers_left, "nodes": len(pos), "leaves": len(leaves), "leaves_fitted": turned,
-        "leaves_placed": placed, "leaf_source": "procedural" if fitted is None else "segment", "leaves_unsupported": dropped["unsupported"],
+        "leaves_placed": placed, "leaves_from_images": 0 if fitted is None else len(fitted[1]),
+        "leaves_replaced": replaced_, "leaves_from_images_off_cloud": off_cloud, "leaves_unsupported": dropped["unsupported"],
         "leaves_duplicate": dropped["duplicates"],
         "internode_length": ell, "roll_angle": prior.roll_angle, "branching_angle": prior.branching_angle,
         "diameter_coefficient": prior.diameter_coefficient, "timings": timings,
@@ -370,10 +431,10 @@ def model(prep: Prepared, prior: SpeciesPrior, params: GuoParams, rng: np.random
 
 
 def reconstruct_guo(points: np.ndarray, rng: np.random.Generator, params: GuoParams = GuoParams(),
-                    prior: SpeciesPrior = GENERIC_PRIOR, fitted: tuple[TriMesh, list[Leaf]] | None = None
-                    ) -> GuoResult:
+                    prior: SpeciesPrior = GENERIC_PRIOR, fitted: tuple[TriMesh, list[Leaf]] | None = None,
+                    merge: bool = False) -> GuoResult:
     """One reconstruction (no analysis-by-synthesis): :func:`prepare` then :func:`model` (``fitted``: see there)."""
     prep = prepare(points, rng, params, prior)
-    res = model(prep, prior, params, rng, fitted)
+    res = model(prep, prior, params, rng, fitted, merge)
     return GuoResult(res.skeleton, res.mesh, res.leaves, {"prepare": prep.info} | res.info)
 

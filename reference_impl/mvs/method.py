@@ -169,6 +169,8 @@ def reconstruct_points(capture_dir: str | Path, out_dir: str | Path, params: MVS
                                                      seeded_rng(seed, "mvs", "oracle"))
         timings["depth"] = time.perf_counter() - t0
         stats["oracle"] = {"noise": params.noise, "sigma_m": sigma}
+        if params.poses == "known" or params.write_depth:
+            _write_depth(out / "depth", [names[i] for i in used], depths, None)
         neighbours = None
     else:
         t0 = time.perf_counter()
@@ -181,12 +183,8 @@ def reconstruct_points(capture_dir: str | Path, out_dir: str | Path, params: MVS
         timings["filter"] = time.perf_counter() - t0
         stats["pixels_matched"] = int(sum(np.isfinite(m.depth).sum() for m in maps))
         stats["pixels_kept"] = int(sum(k.sum() for k in keep))
-        if params.write_depth:
-            ddir = out / "depth"
-            ddir.mkdir(parents=True, exist_ok=True)
-            for i, (m, d) in enumerate(zip(maps, depths, strict=True)):
-                np.savez_compressed(ddir / f"{Path(names[used[i]]).stem}.npz", depth=d, raw_depth=m.depth,
-                                    normal=m.normal, cost=m.cost)
+        if params.poses == "known" or params.write_depth:
+            _write_depth(out / "depth", [names[i] for i in used], depths, maps if params.write_depth else None)
     t0 = time.perf_counter()
     pts, nrm, col, _ = fuse_views(depths, normals, images, cameras, keep)
     stats["points_fused"] = len(pts)
@@ -219,6 +217,20 @@ def reconstruct_points(capture_dir: str | Path, out_dir: str | Path, params: MVS
     stats["neighbours"] = neighbours
     write_json(out / "mvs.json", _jsonable(stats))
     return stats
+
+
+def _write_depth(folder: Path, names: list[str], depths: list[np.ndarray], maps: list[DepthMap] | None) -> None:
+    """Per view ``folder/STEM.npz``: the filtered z-depth (float32, NaN where rejected; ~0.1 MB a 512 px view), and
+    with ``maps`` the raw depth, normal and cost maps too. Each file is written whole or not at all."""
+    import os
+
+    folder.mkdir(parents=True, exist_ok=True)
+    for i, (name, d) in enumerate(zip(names, depths, strict=True)):
+        extra = {} if maps is None else {"raw_depth": maps[i].depth, "normal": maps[i].normal, "cost": maps[i].cost}
+        final = folder / f"{Path(name).stem}.npz"
+        tmp = final.with_suffix(".tmp.npz")
+        np.savez_compressed(tmp, depth=np.asarray(d, np.float32), **extra)
+        os.replace(tmp, final)
 
 
 def _jsonable(obj):

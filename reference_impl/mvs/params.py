@@ -184,7 +184,9 @@ class MVSParams:
     noise: float = 0.0
     """Oracle mode: Gaussian z-depth noise sigma as a fraction of the plant height (plant.json)."""
     write_depth: bool = False
-    """Also write the per-view depth/normal maps as out_dir/depth/NNNN.npz."""
+    """With known poses the filtered depth maps are always written (out_dir/depth/NNNN.npz, key ``depth``: the leaf
+    segmentation of guo reads them); this adds the raw depth, normal and cost maps (and writes them with SfM poses
+    too, in the SfM model's frame)."""
     neighbours: NeighbourParams = field(default_factory=NeighbourParams)
     depth_params: DepthParams = field(default_factory=DepthParams)
     filter: FilterParams = field(default_factory=FilterParams)

@@ -102,7 +102,7 @@ def test_bad_input(tmp_path):
     with pytest.raises(InputError, match="cameras.json"):  # leaves from images need a view capture
         Guo().reconstruct(tmp_path, tmp_path / "o", seed=0, leaves="segment")
     with pytest.raises(InputError, match="segment"):
-        Guo().reconstruct(tmp_path, tmp_path / "o", seed=0, leaf_depth="oracle")
+        Guo().reconstruct(tmp_path, tmp_path / "o", seed=0, leaves="procedural", leaf_depth="oracle")
     flat = np.c_[np.random.default_rng(0).random((100, 2)), np.zeros(100)]
     write_points(tmp_path / "points.ply", flat)
     with pytest.raises(InputError):

@@ -84,6 +84,11 @@ def test_oracle_without_noise_lies_on_the_surface(case, tmp_path, scene):
     assert np.all(pts[:, 2] > 0.05)
     stats = json.loads((out / "mvs.json").read_text())
     assert stats["oracle"]["sigma_m"] == 0.0 and stats["points"] == len(pts)
+    # known poses: the per-view depth maps are written for the leaf stage (depth only without write_depth)
+    files = sorted((out / "depth").glob("*.npz"))
+    assert len(files) == stats["views_used"] and not list((out / "depth").glob("*.tmp*"))
+    with np.load(files[0]) as z:
+        assert set(z.files) == {"depth"} and z["depth"].dtype == np.float32
 
 
 def test_oracle_noise_is_a_fraction_of_plant_height(case, tmp_path, scene):
@@ -116,6 +121,8 @@ def test_estimated_cloud_is_accurate(case, tmp_path, scene):
     stats = json.loads((out / "mvs.json").read_text())
     assert stats["views_used"] == 16 and stats["points"] == len(pts)
     assert len(list((out / "depth").glob("*.npz"))) == 16
+    with np.load(next((out / "depth").glob("*.npz"))) as z:
+        assert {"depth", "raw_depth", "normal", "cost"} <= set(z.files)
 
 
 def test_sfm_options_reach_their_group():
