@@ -331,18 +331,20 @@ def supported_fitted(fitted: tuple[TriMesh, list[Leaf]], cloud_tree: cKDTree, sp
                            spacing, support)
     if keep.all():
         return fitted, 0
-    vkeep = np.repeat(keep, q)
-    remap = np.cumsum(vkeep) - 1
-    faces = remap[mesh.faces[vkeep[mesh.faces].all(axis=1)]]
-    kept = [replace(leaves[i], id=j) for j, i in enumerate(np.flatnonzero(keep))]
-    return (TriMesh(mesh.vertices[vkeep], faces), kept), int(m - keep.sum())
+    return _subset_leaves(mesh, leaves, keep, np.repeat(np.arange(m), q)), int(m - keep.sum())
 
 
 def _subset_foliage(mesh: TriMesh, leaves: list[Leaf], keep: np.ndarray) -> tuple[TriMesh, list[Leaf]]:
     """The leaves with ``keep`` True (renumbered) and their part of a place_leaves-layout foliage mesh."""
     m = len(leaves)
     q, _ = _blades(mesh.vertices, m)
-    owner = np.concatenate([np.repeat(np.arange(m), q), np.repeat(np.arange(m), 6)])
+    owner = np.concatenate([np.repeat(np.arange(m), q), np.repeat(np.arange(m), 6)])  # blades, then petioles
+    return _subset_leaves(mesh, leaves, keep, owner)
+
+
+def _subset_leaves(mesh: TriMesh, leaves: list[Leaf], keep: np.ndarray, owner: np.ndarray
+                   ) -> tuple[TriMesh, list[Leaf]]:
+    """The kept leaves (renumbered) and the part of ``mesh`` whose vertices they own (``owner``: leaf per vertex)."""
     vkeep = keep[owner]
     remap = np.cumsum(vkeep) - 1
     faces = mesh.faces[vkeep[mesh.faces].all(axis=1)]

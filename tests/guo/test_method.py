@@ -138,3 +138,38 @@ def test_analysis_by_synthesis_keeps_the_best_candidate(tree_case, tmp_path):
     assert abs_info["chosen"] == int(np.argmax(want))
     assert abs_info["priors"][0] == 1.0 and all(0 < p <= 1 for p in abs_info["priors"])
     assert all(0 <= e < 1 for e in abs_info["errors"])
+
+
+def test_merge_leaves_replaces_the_procedural_leaves_the_images_saw():
+    """merge_leaves: a procedural leaf whose blade centre lies within half its length of an image-fitted leaf is
+    replaced by it; the others stay, after the fitted ones, renumbered; the mesh keeps exactly their triangles."""
+    from plantbench.generate.leaf import BezierLeaf, tessellate
+    from plantbench.plant import Leaf, TriMesh
+    from reference_impl.guo.pipeline import merge_leaves
+
+    def leaves_at(xs, petioles):
+        blade = tessellate(BezierLeaf(), 0.1)
+        out, meshes = [], []
+        for i, x in enumerate(xs):
+            tr = np.eye(4)
+            tr[0, 3] = x
+            out.append(Leaf(i, -1, tr, BezierLeaf().to_dict(), 0.1, 0.04))
+            meshes.append(TriMesh(blade.vertices + [x, 0, 0], blade.faces))
+        blades = TriMesh.concatenate(meshes)
+        if not petioles:
+            return blades, out
+        pet = TriMesh(np.zeros((6 * len(xs), 3)), np.arange(6 * len(xs)).reshape(-1, 3))  # 6 vertices per leaf
+        return TriMesh(np.concatenate([blades.vertices, pet.vertices]),
+                       np.concatenate([blades.faces, pet.faces + len(blades.vertices)])), out
+
+    proc_mesh, proc = leaves_at([0.0, 1.0, 2.0], petioles=True)
+    fit_mesh, fit = leaves_at([1.02, 5.0], petioles=False)
+    mesh, merged, replaced = merge_leaves(proc_mesh, proc, (fit_mesh, fit))
+    assert replaced == 1
+    assert [lf.id for lf in merged] == [0, 1, 2, 3]
+    assert [lf.transform[0, 3] for lf in merged] == [1.02, 5.0, 0.0, 2.0]
+    per_leaf = len(tessellate(BezierLeaf(), 0.1).faces)
+    assert len(mesh.faces) == 2 * per_leaf + 2 * (per_leaf + 2)
+    # no fitted leaves: the procedural ones unchanged
+    mesh2, same, none = merge_leaves(proc_mesh, proc, (TriMesh.empty(), []))
+    assert none == 0 and len(same) == 3 and len(mesh2.faces) == len(proc_mesh.faces)
