@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plantbench.generate.leaf import PARAM_NAMES, BezierLeaf, leaf_grid, leaf_points
+from plantbench.generate.leaf import PARAM_NAMES, BezierLeaf, leaf_points, tessellate_placed
 from plantbench.plant import Leaf, TriMesh
 
 __all__ = ["FoliageParams", "Foliage", "place_leaves"]
@@ -143,12 +143,9 @@ def place_leaves(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, 
     rot = np.round(rot, 9)
     base = np.round(base, 9)
     # tessellation of every blade at once
-    u, v, tri = leaf_grid(p.resolution)
-    local = leaf_points(omega, u, v) * lengths[:, None, None]  # (m, q, 3)
-    world = np.einsum("kij,kqj->kqi", rot, local) + base[:, None, :]
-    q = local.shape[1]
-    blade_faces = (tri[None, :, :] + (np.arange(m) * q)[:, None, None]).reshape(-1, 3)
-    blade_ids = np.repeat(np.arange(m), len(tri))
+    world, blade_faces = tessellate_placed(omega, lengths, rot, base, p.resolution)  # (m, q, 3)
+    q = world.shape[1]
+    blade_ids = np.repeat(np.arange(m), len(blade_faces) // m)
     # petioles: triangular prisms from the twig axis to the blade base
     e = _unit(base - pet_start)
     e1 = _unit(np.cross(e, np.where(np.abs(e[:, [2]]) < 0.9, up, np.array([1.0, 0.0, 0.0]))))

@@ -31,7 +31,7 @@ import numpy as np
 
 from plantbench.plant import TriMesh
 
-__all__ = ["BezierLeaf", "PARAM_NAMES", "bezier", "leaf_points", "leaf_grid", "tessellate", "tessellate_many",
+__all__ = ["BezierLeaf", "PARAM_NAMES", "bezier", "leaf_points", "leaf_grid", "tessellate", "tessellate_many", "tessellate_placed",
            "silhouette_outline", "max_half_width"]
 
 
@@ -154,15 +154,13 @@ def _axis_frame(axis: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 def _longitudinal_controls(omega: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Axis control (..., 4, 3) and right-half silhouette, F and G control points (..., 5, 3) each (Eq. 3-4)."""
-    axis, right, _ = _half_controls(omega, sides=(1.0,))
+    axis, right, _ = _half_controls(omega)
     return (axis, *right)
 
 
-def _half_controls(omega: np.ndarray, sides: tuple[float, ...] = (1.0, -1.0)
-                   ) -> tuple[np.ndarray, tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
-    """Axis control (..., 4, 3) and, per side in ``sides`` (+1 right, -1 left: the left half mirrors the sideways
-    offsets of S, F and G), that half's silhouette, F and G control points (..., 5, 3) each (Eq. 3-4). The axis
-    frame is evaluated once for both halves."""
+def _half_controls(omega: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+    """Axis control (..., 4, 3) and the silhouette, F and G control points (..., 5, 3) of the right and of the left
+    half (which mirrors the sideways offsets of S, F and G) (Eq. 3-4), from one evaluation of the axis frame."""
     omega = np.asarray(omega, dtype=np.float64)
     axis = _axis_control(omega)
     vbar = omega[..., 6:9]
@@ -176,11 +174,10 @@ def _half_controls(omega: np.ndarray, sides: tuple[float, ...] = (1.0, -1.0)
         inner = pts + frac * xs[..., None] * normal + z[..., None] * zhat
         return np.concatenate([base, inner, apex], axis=-2)
 
-    halves = []
-    for sign in sides:
-        xs = omega[..., 9:12] if sign > 0 else -omega[..., 9:12]
-        halves.append((curve(1.0, xs, zs), curve(1.0 / 3.0, xs, zf), curve(2.0 / 3.0, xs, zg)))
-    return axis, halves[0], (halves[1] if len(halves) > 1 else ())
+    def half(xs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return curve(1.0, xs, zs), curve(1.0 / 3.0, xs, zf), curve(2.0 / 3.0, xs, zg)
+
+    return axis, half(omega[..., 9:12]), half(-omega[..., 9:12])
 
 
 def leaf_points(omega: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -274,6 +271,19 @@ def tessellate_many(omega: np.ndarray, lengths: np.ndarray, resolution: tuple[in
     u, v, faces = leaf_grid(resolution)
     pts = leaf_points(np.asarray(omega, dtype=np.float64), u, v)
     return pts * np.asarray(lengths, dtype=np.float64)[:, None, None], faces
+
+
+def tessellate_placed(omega: np.ndarray, lengths: np.ndarray, rot: np.ndarray, base: np.ndarray,
+                      resolution: tuple[int, int] = (4, 8)) -> tuple[np.ndarray, np.ndarray]:
+    """Tessellate k leaves at once in world coordinates: leaf frame -> world by ``rot`` (k, 3, 3) (columns: the
+    leaf's x, y, z axes) and ``base`` (k, 3).
+
+    returns : vertices (k, m, 3) and faces (k * f, 3) indexing the flattened vertices, leaf by leaf
+    """
+    verts, tri = tessellate_many(omega, lengths, resolution)
+    world = np.einsum("kij,kqj->kqi", rot, verts) + base[:, None, :]
+    q = verts.shape[1]
+    return world, (tri[None, :, :] + (np.arange(len(world)) * q)[:, None, None]).reshape(-1, 3)
 
 
 def tessellate(leaf: BezierLeaf | np.ndarray, length: float = 1.0, resolution: tuple[int, int] = (4, 8)) -> TriMesh:

@@ -10,13 +10,13 @@ Eq. 5-7, 9, shedding), :mod:`.refine` (collapse, Hermite smoothing), :mod:`.pipe
 Options (a suite's ``[method_options.guo]``): every :class:`~reference_impl.guo.params.GuoParams` field by name,
 plus ``prior`` (True: the species hint's parameters; False: generic defaults, to measure what the prior buys) and
 ``leaves`` ('auto', the default: 'combined' when ``capture_dir/depth`` holds the mvs stage's depth maps, as the
-runner provides for view captures, else 'procedural'; 'procedural': leaves placed per the species library, turned
-onto the cloud and kept where the cloud supports them; 'segment': the leaves that :mod:`reference_impl.leaves` segments and fits from the views,
-seed 001, which needs ``capture_dir/views``; 'combined': those fitted leaves plus the procedural leaves they do not
-cover), ``leaf_depth`` (with 'segment': the depth maps the leaves are
-segmented on, 'mvs' (default: ``capture_dir/depth``, the mvs stage's maps when it ran with ``write_depth``, else
-estimated) or 'oracle' (the capture's exact depth: an upper bound)) and ``leaf__NAME`` for any
-:class:`~reference_impl.leaves.LeafParams` field. ``candidates=k`` (k > 1) turns on analysis-by-synthesis, which
+runner provides for view captures with known poses, else 'procedural'; 'procedural': leaves placed per the species
+library, turned onto the cloud and kept where the cloud supports them; 'segment': the leaves that
+:mod:`reference_impl.leaves` segments and fits from the views (seed 001), which needs ``capture_dir/views``;
+'combined': those fitted leaves plus the procedural leaves they do not cover), ``leaf_depth`` (the depth maps the
+leaves are segmented on: 'mvs', the default, ``capture_dir/depth`` or, without it, maps estimated here; 'oracle',
+the capture's exact depth, an upper bound) and ``leaf__NAME`` for any :class:`~reference_impl.leaves.LeafParams`
+field. ``candidates=k`` (k > 1) turns on analysis-by-synthesis, which
 needs ``capture_dir/views``.
 """
 

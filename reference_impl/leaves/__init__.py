@@ -15,12 +15,19 @@ from pathlib import Path
 from .ellipse import Ellipse, khachiyan, min_volume_ellipse, min_volume_ellipses
 from .fit import LeafFit, LeafModel, fit_leaf, uv_mapping
 from .params import LeafParams
-from .pipeline import (SKIP_REASONS, LeafFitResult, fitted_mesh, load_depth_dir, segment_and_fit, views_folder,
-                       write_leaves)
+from .pipeline import (
+    SKIP_REASONS,
+    LeafFitResult,
+    fitted_mesh,
+    load_depth_dir,
+    segment_and_fit,
+    views_folder,
+    write_leaves,
+)
 
 __all__ = [
-    "Leaves", "leaves_from_capture", "fitted_mesh", "LeafParams", "LeafFitResult", "LeafFit", "LeafModel", "Ellipse", "SKIP_REASONS", "segment_and_fit",
-    "write_leaves", "load_depth_dir", "fit_leaf", "uv_mapping", "khachiyan", "min_volume_ellipse",
+    "Leaves", "leaves_from_capture", "fitted_mesh", "LeafParams", "LeafFitResult", "LeafFit", "LeafModel", "Ellipse",
+    "SKIP_REASONS", "segment_and_fit", "write_leaves", "load_depth_dir", "fit_leaf", "uv_mapping", "khachiyan", "min_volume_ellipse",
     "min_volume_ellipses",
 ]
 

@@ -39,10 +39,11 @@ from plantbench.generate.leaf import (
 )
 from plantbench.plant import check_shape
 
-from .ellipse import Ellipse, ellipse_extent
+from .ellipse import Ellipse
 from .params import LeafParams
 
-__all__ = ["LeafFit", "LeafModel", "fit_leaf", "fit_leaves", "lm_batch", "uv_mapping", "uv_mapping_batch", "model_weights", "initial_params", "leaf_frame"]
+__all__ = ["LeafFit", "LeafModel", "fit_leaf", "fit_leaves", "lm_batch", "linear_jacobian", "uv_mapping",
+           "uv_mapping_batch", "model_weights", "initial_params", "leaf_frame"]
 
 
 @dataclass(frozen=True)
@@ -403,9 +404,11 @@ def fit_leaves(clouds: list[np.ndarray], *, params: LeafParams = LeafParams(), r
     chosen = list(best.values())
     _alternate(chosen, params, params.fit_iterations)
     frames = {i: (c, frame) for i, c, frame, _ in prepared}
-    ok = [p for p in chosen if np.all(np.isfinite(p.omega)) and np.isfinite(p.rms)]
+    ok = []
     for p in chosen:
-        if not (np.all(np.isfinite(p.omega)) and np.isfinite(p.rms)):
+        if np.all(np.isfinite(p.omega)) and np.isfinite(p.rms):
+            ok.append(p)
+        else:
             out[p.leaf] = "fit_failed"
     if not ok:
         return out

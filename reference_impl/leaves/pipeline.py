@@ -31,7 +31,7 @@ import numpy as np
 from plantbench.cameras import Camera, read_cameras
 from plantbench.errors import InputError
 from plantbench.generate.leaf import BezierLeaf
-from plantbench.plant import Leaf
+from plantbench.plant import Leaf, TriMesh
 from plantbench.seeding import rng as seeded_rng
 
 from .fit import LeafFit, fit_leaves
@@ -281,20 +281,18 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
     return LeafFitResult(leaves, fits, leaf_pts, skipped, stats)
 
 
-def fitted_mesh(result: LeafFitResult, resolution: tuple[int, int] = (4, 8)):
-    """The fitted leaves as one triangle mesh in world coordinates (the generator's tessellation,
-    :func:`plantbench.generate.leaf.tessellate_many`, at each leaf's transform), blades in leaf order."""
-    from plantbench.generate.leaf import tessellate_many
-    from plantbench.plant import TriMesh
+def fitted_mesh(result: LeafFitResult, resolution: tuple[int, int] = (4, 8)) -> TriMesh:
+    """The fitted leaves as one triangle mesh in world coordinates (the generator's tessellation at each leaf's
+    transform), blades in leaf order, the same number of vertices each."""
+    from plantbench.generate.leaf import tessellate_placed
 
     if not result.fits:
-        return TriMesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
-    verts, faces = tessellate_many(np.stack([f.omega for f in result.fits]),
-                                   np.array([f.length for f in result.fits]), resolution)
+        return TriMesh.empty()
     tr = np.stack([f.transform for f in result.fits])
-    world = np.einsum("kij,kmj->kmi", tr[:, :3, :3], verts) + tr[:, None, :3, 3]
-    m = verts.shape[1]
-    return TriMesh(world.reshape(-1, 3), (faces[None] + m * np.arange(len(tr))[:, None, None]).reshape(-1, 3))
+    verts, faces = tessellate_placed(np.stack([f.omega for f in result.fits]),
+                                     np.array([f.length for f in result.fits]), tr[:, :3, :3], tr[:, :3, 3],
+                                     resolution)
+    return TriMesh(verts.reshape(-1, 3), faces)
 
 
 def write_leaves(out_dir: str | os.PathLike, result: LeafFitResult, *, samples_per_leaf: int = 153) -> None:

@@ -15,7 +15,7 @@ import numpy as np
 
 from plantbench.cameras import Camera, read_cameras
 from plantbench.errors import InputError
-from plantbench.io.atomic import write_json
+from plantbench.io.atomic import atomic_write, write_json
 from plantbench.io.ply import write_points
 from plantbench.seeding import rng as seeded_rng
 
@@ -169,9 +169,7 @@ def reconstruct_points(capture_dir: str | Path, out_dir: str | Path, params: MVS
                                                      seeded_rng(seed, "mvs", "oracle"))
         timings["depth"] = time.perf_counter() - t0
         stats["oracle"] = {"noise": params.noise, "sigma_m": sigma}
-        if params.poses == "known" or params.write_depth:
-            _write_depth(out / "depth", [names[i] for i in used], depths, None)
-        neighbours = None
+        neighbours, maps = None, None
     else:
         t0 = time.perf_counter()
         maps, neighbours, secs = depth_maps(images, cameras, params, seed=seed)
@@ -183,8 +181,8 @@ def reconstruct_points(capture_dir: str | Path, out_dir: str | Path, params: MVS
         timings["filter"] = time.perf_counter() - t0
         stats["pixels_matched"] = int(sum(np.isfinite(m.depth).sum() for m in maps))
         stats["pixels_kept"] = int(sum(k.sum() for k in keep))
-        if params.poses == "known" or params.write_depth:
-            _write_depth(out / "depth", [names[i] for i in used], depths, maps if params.write_depth else None)
+    if params.poses == "known" or params.write_depth:
+        _write_depth(out / "depth", [names[i] for i in used], depths, maps if params.write_depth else None)
     t0 = time.perf_counter()
     pts, nrm, col, _ = fuse_views(depths, normals, images, cameras, keep)
     stats["points_fused"] = len(pts)
@@ -221,16 +219,11 @@ def reconstruct_points(capture_dir: str | Path, out_dir: str | Path, params: MVS
 
 def _write_depth(folder: Path, names: list[str], depths: list[np.ndarray], maps: list[DepthMap] | None) -> None:
     """Per view ``folder/STEM.npz``: the filtered z-depth (float32, NaN where rejected; ~0.1 MB a 512 px view), and
-    with ``maps`` the raw depth, normal and cost maps too. Each file is written whole or not at all."""
-    import os
-
-    folder.mkdir(parents=True, exist_ok=True)
+    with ``maps`` the raw depth, normal and cost maps too (oracle depth has none). Each file is written atomically."""
     for i, (name, d) in enumerate(zip(names, depths, strict=True)):
         extra = {} if maps is None else {"raw_depth": maps[i].depth, "normal": maps[i].normal, "cost": maps[i].cost}
-        final = folder / f"{Path(name).stem}.npz"
-        tmp = final.with_suffix(".tmp.npz")
-        np.savez_compressed(tmp, depth=np.asarray(d, np.float32), **extra)
-        os.replace(tmp, final)
+        with atomic_write(folder / f"{Path(name).stem}.npz") as fh:
+            np.savez_compressed(fh, depth=np.asarray(d, np.float32), **extra)
 
 
 def _jsonable(obj):
