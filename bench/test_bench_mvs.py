@@ -1,5 +1,7 @@
 """Dense depth for one 512 x 512 reference view with 4 neighbours and 128 depth hypotheses (plane sweep + PatchMatch,
 Dr.Jit LLVM), beside a bare OpenCV StereoSGBM on one rectified pair of the same views (256 disparities, SGBM_3WAY).
+The default (full resolution, dense 5 x 5 window) and the fast preset (coarse to fine with a checkerboard window,
+DepthParams.coarse_scale) are both timed.
 
 The views come from the capture in ``$PLANTBENCH_MVS_CASE`` when set (a case folder with views/), else from the
 analytic textured scene of reference_impl.mvs.synthetic (20 views on a ring, 512 px; 5 of them rendered).
@@ -45,10 +47,8 @@ def views():
     return imgs[ref], [imgs[j] for j in nb[ref]], cams[ref], [cams[j] for j in nb[ref]], rng_, gt
 
 
-@pytest.mark.benchmark(group="dense-depth-512")
-def test_plantbench_depth_4_neighbours_128_planes(benchmark, views):
+def _depth(benchmark, views, params):
     ref, srcs, cam, src_cams, rng_, gt = views
-    params = DepthParams(hypotheses=128)
     estimate_depth(ref, srcs, cam, src_cams, rng_, params, rng=np.random.default_rng(0))  # kernels compiled/loaded
     dm = benchmark.pedantic(
         estimate_depth, args=(ref, srcs, cam, src_cams, rng_, params), kwargs={"rng": np.random.default_rng(0)},
@@ -60,6 +60,16 @@ def test_plantbench_depth_4_neighbours_128_planes(benchmark, views):
         matched=float(ok.mean()), median_rel_error=float(np.median(rel)), within_1pct=float(np.mean(rel < 0.01))
     )
     assert ok.any()
+
+
+@pytest.mark.benchmark(group="dense-depth-512")
+def test_plantbench_depth_4_neighbours_128_planes(benchmark, views):
+    _depth(benchmark, views, DepthParams(hypotheses=128))
+
+
+@pytest.mark.benchmark(group="dense-depth-512")
+def test_plantbench_depth_fast_preset(benchmark, views):
+    _depth(benchmark, views, DepthParams(hypotheses=128, coarse_scale=2, coarse_iterations=2, pm_checker=True))
 
 
 @pytest.mark.benchmark(group="dense-depth-512")

@@ -186,24 +186,16 @@ def reconstruct_points(capture_dir: str | Path, out_dir: str | Path, params: MVS
     t0 = time.perf_counter()
     pts, nrm, col, _ = fuse_views(depths, normals, images, cameras, keep)
     stats["points_fused"] = len(pts)
-    remove_ground = params.depth != "oracle" and params.ground.enabled
-    # the ground covers most of the views: remove it before the final downsampling so that the point budget goes
-    # to the plant (downsampling first to the budget left the plant a few voxels per leaf)
-    budget = params.fusion.points * (params.fusion.pre_ground_factor if remove_ground else 1)
-    pts, nrm, col, voxel = voxel_downsample(pts, budget, normals=nrm, colours=col)
-    stats["points_downsampled"] = len(pts)
     timings["fusion"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    if remove_ground and len(pts):
-        radius = 3.0 * voxel if voxel > 0 else 0.01 * scale
-        mask, plane = plant_mask(pts, col, scale=scale, params=params.ground, rng=seeded_rng(seed, "mvs", "ground"),
-                                 component_radius=radius)
+    remove_ground = params.depth != "oracle" and params.ground.enabled
+    pts, nrm, col, voxel, plane, n_down = plant_points(pts, nrm, col, scale=scale, params=params,
+                                                       remove_ground=remove_ground, seed=seed)
+    stats["points_downsampled"] = n_down
+    if remove_ground:
         stats["ground_plane"] = None if plane is None else {"normal": plane.normal.tolist(), "offset": plane.offset}
-        pts, nrm, col = pts[mask], nrm[mask], col[mask]
-        if len(pts):
-            pts, nrm, col, voxel = voxel_downsample(pts, params.fusion.points, normals=nrm, colours=col)
-    stats["voxel"] = voxel
     timings["ground"] = time.perf_counter() - t0
+    stats["voxel"] = voxel
     stats["points"] = len(pts)
     if len(pts) == 0:
         raise InputError("the multi-view stage produced no points (views without texture or overlap?)",
@@ -215,6 +207,30 @@ def reconstruct_points(capture_dir: str | Path, out_dir: str | Path, params: MVS
     stats["neighbours"] = neighbours
     write_json(out / "mvs.json", _jsonable(stats))
     return stats
+
+
+def plant_points(pts, nrm, col, *, scale: float, params: MVSParams, remove_ground: bool, seed: int):
+    """The fused cloud to the written one: voxel-downsampled, the ground and floaters removed, downsampled again.
+
+    The ground covers most of the views: it is removed before the final downsampling so that the point budget goes
+    to the plant (downsampling first to the budget left the plant a few voxels per leaf). Returns the points,
+    normals, colours, the last voxel size (0 when no downsampling was needed), the ground plane (None when not
+    removed or not found) and the number of points after the first downsampling.
+    """
+    budget = params.fusion.points * (params.fusion.pre_ground_factor if remove_ground else 1)
+    pts, nrm, col, voxel = voxel_downsample(pts, budget, normals=nrm, colours=col)
+    n_down, plane = len(pts), None
+    if remove_ground and len(pts):
+        # the floater test's neighbourhood: 1 % of the scene scale, or 3 voxels when the voxels are coarser (3
+        # voxels alone broke the plant into "floaters" when the budget barely bound and the voxels were tiny: a
+        # peach with 5 % more depth pixels than the budget lost half its plant points)
+        radius = max(3.0 * voxel, 0.01 * scale)
+        mask, plane = plant_mask(pts, col, scale=scale, params=params.ground, rng=seeded_rng(seed, "mvs", "ground"),
+                                 component_radius=radius)
+        pts, nrm, col = pts[mask], nrm[mask], col[mask]
+        if len(pts):
+            pts, nrm, col, voxel = voxel_downsample(pts, params.fusion.points, normals=nrm, colours=col)
+    return pts, nrm, col, voxel, plane, n_down
 
 
 def _write_depth(folder: Path, names: list[str], depths: list[np.ndarray], maps: list[DepthMap] | None) -> None:

@@ -130,3 +130,30 @@ def test_sfm_options_reach_their_group():
     assert p.sfm.guided_matching is False and p.sfm.peak_threshold == 0.004 and p.sfm.domain_size_pooling
     with pytest.raises(InputError, match="sfm"):
         MVSParams.from_options({"sfm__no_such_option": 1})
+
+
+def test_plant_points_keep_leaves_when_the_budget_barely_binds():
+    """The floater test links points within max(3 voxels, 1 % of the scene scale): when the pre-ground budget is
+    only just exceeded, the voxels are tiny, and 3 voxels alone cut every leaf off its branch and dropped it."""
+    from reference_impl.mvs.method import plant_points
+
+    rng = np.random.default_rng(5)
+    ground = np.column_stack([rng.uniform(-2, 2, (60000, 2)), rng.normal(0, 0.002, 60000)])
+    trunk = np.column_stack([rng.normal(0, 0.003, (3000, 2)), rng.uniform(0.05, 2.0, 3000)])
+    # 40 leaves of 40 points (~1 cm across), their centres 3.5 cm from the trunk's axis and 4 cm apart in height,
+    # alternating sides: each is linked to the trunk at 5 cm (1 % of a 5 m scene), none at a few millimetres
+    z = 0.3 + 0.04 * np.arange(40)
+    side = np.where(np.arange(40) % 2 == 0, 1.0, -1.0)
+    centres = np.column_stack([0.035 * side, np.zeros(40), z])
+    leaves = (centres[:, None, :] + rng.normal(0, 0.003, (40, 40, 3))).reshape(-1, 3)
+    pts = np.vstack([ground, trunk, leaves])
+    col = np.vstack([np.tile([120, 100, 80], (len(ground), 1)), np.tile([90, 60, 40], (len(trunk), 1)),
+                     np.tile([40, 140, 40], (len(leaves), 1))]).astype(np.uint8)
+    nrm = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    params = MVSParams.from_options({"points": int(len(pts) / 4 / 1.05)})  # pre-ground budget 5 % short
+    out, _, _, _, plane, n_down = plant_points(pts, nrm, col, scale=5.0, params=params, remove_ground=True, seed=0)
+    assert n_down <= 4 * params.fusion.points < len(pts)  # the first downsampling bound (by a few %)
+    assert plane is not None and abs(plane.normal[2]) > 0.99
+    nearest = np.linalg.norm(centres[:, None, :] - out[None], axis=2).min(1)
+    assert np.all(nearest < 0.01)  # every leaf survives
+    assert np.mean(out[:, 2] < 0.02) < 0.01  # the ground is gone

@@ -79,22 +79,120 @@ def test_estimate_depth_rejects_bad_input(views, ring):
                        rng=np.random.default_rng(0))
 
 
-def test_bilinear_lookup_matches_scipy(rng):
-    """The Dr.Jit bilinear lookup of the cost kernels against scipy's map_coordinates (order 1, border replicated),
-    including points outside the image and non-finite coordinates (a ray parallel to the plane)."""
+def test_packed_bilinear_lookup_matches_scipy(rng):
+    """The one-gather bilinear lookup of the cost kernels (2 x 2 blocks of 15-bit levels in 64-bit words) against
+    scipy's map_coordinates (order 1, border replicated) on the float image, including points outside the image; a
+    non-finite coordinate reads inside the image and gives NaN (the cost kernels reject it)."""
     from scipy.ndimage import map_coordinates
 
-    from reference_impl.mvs.patchmatch import _bilinear, _drjit
+    from reference_impl.mvs.patchmatch import _bilinear_packed, _drjit, _Packed
 
     dr, jl = _drjit()
     h, w = 37, 53
-    img = rng.random((h, w)).astype(np.float32)
+    img = rng.uniform(-2.0, 3.0, (h, w))
+    packed = _Packed.pack(jl, img)
     u = np.concatenate([rng.uniform(-3, w + 2, 500), [np.nan, np.inf, -np.inf, 0.0, w - 1.0]]).astype(np.float32)
     v = np.concatenate([rng.uniform(-3, h + 2, 500), [1.0, 2.0, 3.0, np.nan, h - 1.0]]).astype(np.float32)
-    val, inside = _bilinear(dr, jl, jl.Float(img.ravel()), w, h, jl.Float(u), jl.Float(v))
-    val, inside = np.asarray(val), np.asarray(inside)
+    levels = np.asarray(_bilinear_packed(dr, jl, packed, jl.Float(u), jl.Float(v)))
+    val = packed.offset + packed.scale * levels
     fin = np.isfinite(u) & np.isfinite(v)
     ref = map_coordinates(img, [v[fin], u[fin]], order=1, mode="nearest")
-    np.testing.assert_allclose(val[fin], ref, atol=1e-5)
-    assert np.all(np.isfinite(val))
-    np.testing.assert_array_equal(inside, fin & (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5))
+    np.testing.assert_allclose(val[fin], ref, atol=5.0 / 32767 + 1e-6)  # half a level of the 5-wide range, + float32
+    assert np.isfinite(val[~np.isnan(u) & ~np.isnan(v)]).all()
+    assert np.isnan(val[np.isnan(u) | np.isnan(v)]).all()
+
+
+def _naive_plane_cost(ref, srcs, ref_cam, src_cams, x, y, d, n_cam, p: DepthParams):
+    """The bilateral-weighted ZNCC cost of one pixel's plane, sample by sample: ray-plane intersection, projection,
+    scipy bilinear lookup, weighted ZNCC per source, mean of the top_k best."""
+    from scipy.ndimage import map_coordinates
+
+    kinv = np.linalg.inv(ref_cam.K)
+    rho = d * n_cam @ (kinv @ [x, y, 1.0])
+    r = p.pm_radius
+    offs = [(ox, oy) for oy in range(-r, r + 1) for ox in range(-r, r + 1) if not p.pm_checker or (ox + oy) % 2 == 0]
+    rv = np.array([ref[y + oy, x + ox] for ox, oy in offs])
+    wt = np.exp(-((rv - ref[y, x]) ** 2) / (2 * p.bilateral_sigma_color**2)
+                - np.array([ox * ox + oy * oy for ox, oy in offs]) / (2 * p.bilateral_sigma_space**2))
+    wt /= wt.sum()
+    costs = []
+    for src, cam in zip(srcs, src_cams):
+        r_rel = cam.R @ ref_cam.R.T
+        t_rel = cam.t - r_rel @ ref_cam.t
+        sv, ok = [], True
+        for ox, oy in offs:
+            ray = kinv @ [x + ox, y + oy, 1.0]
+            X = ray * rho / (n_cam @ ray)
+            xs = cam.K @ (r_rel @ X + t_rel)
+            u, v = xs[0] / xs[2], xs[1] / xs[2]
+            if ox == 0 and oy == 0:
+                ok = xs[2] > 0 and -0.5 <= u <= src.shape[1] - 0.5 and -0.5 <= v <= src.shape[0] - 0.5
+            sv.append(map_coordinates(src, [[v], [u]], order=1, mode="nearest")[0])
+        sv = np.array(sv)
+        mr, ms = wt @ rv, wt @ sv
+        cov = wt @ (rv * sv) - mr * ms
+        var_r, var_s = wt @ rv**2 - mr**2, wt @ sv**2 - ms**2
+        costs.append(1.0 - cov / np.sqrt(var_r * var_s + 1e-8) if ok else 2.0)
+    return float(np.mean(np.sort(costs)[: p.top_k]))
+
+
+@pytest.mark.parametrize("checker", [False, True])
+def test_plane_cost_matches_naive(views, ring, rng, checker):
+    """The PatchMatch cost kernel (per-pixel homographies, packed lookups, precomputed window weights) against the
+    sample-by-sample computation, for random slanted planes at random pixels away from the border."""
+    from reference_impl.mvs.patchmatch import _drjit, _Engine
+
+    dr, jl = _drjit()
+    p = DepthParams(pm_checker=checker)
+    srcs_i = [1, 15, 2, 14]
+    ref = to_gray(views[0][0])
+    srcs = [to_gray(views[j][0]) for j in srcs_i]
+    eng = _Engine(ref, srcs, ring[0], [ring[j] for j in srcs_i], p)
+    m = 60
+    x = rng.integers(3, ring[0].width - 3, m)
+    y = rng.integers(3, ring[0].height - 3, m)
+    gt = views[0][1][y, x]
+    d = np.where(np.isfinite(gt), gt, 3.0) * rng.uniform(0.97, 1.03, m)
+    n = rng.normal(size=(m, 3)) * [0.4, 0.4, 1.0]
+    n[:, 2] = -np.abs(n[:, 2])  # facing the camera (camera looks along +z)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    win = eng._window(jl.UInt32((x + y * ring[0].width).astype(np.uint32)))
+    got = np.asarray(eng._plane_cost(win, jl.Float(d), jl.Float(n[:, 0]), jl.Float(n[:, 1]), jl.Float(n[:, 2])))
+    want = np.array([_naive_plane_cost(ref, srcs, ring[0], [ring[j] for j in srcs_i], x[i], y[i], d[i], n[i], p)
+                     for i in range(m)])
+    assert np.ptp(want) > 0.3  # the test planes are not all alike
+    np.testing.assert_allclose(got, want, atol=5e-4)
+
+
+def test_sweep_costs_match_numpy(views, ring):
+    """The sweep's per-source costs of one plane (packed source lookups, products quantised into 16-bit fields
+    summed four sources at a time) against float warping with scipy and a scipy box filter."""
+    from scipy.ndimage import map_coordinates, uniform_filter
+
+    from reference_impl.mvs.patchmatch import _Engine, _normalised
+
+    p = DepthParams()
+    srcs_i = [1, 15, 2, 14]
+    ref = to_gray(views[0][0])
+    srcs = [to_gray(views[j][0]) for j in srcs_i]
+    cams = [ring[j] for j in srcs_i]
+    eng = _Engine(ref, srcs, ring[0], cams, p)
+    d = float(np.nanmedian(views[0][1]))
+    got = [np.asarray(c).reshape(ref.shape) for c in eng.sweep_costs(1.0 / d)]
+    h, w = ref.shape
+    u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+    ref_hat = _normalised(ref, p.sweep_window, p.min_texture)
+    for j, (src, cam) in enumerate(zip(srcs, cams)):
+        r_rel = cam.R @ ring[0].R.T
+        t_rel = cam.t - r_rel @ ring[0].t
+        X = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(ring[0].K).T * d  # points on the plane z = d
+        xs = (X @ r_rel.T + t_rel) @ cam.K.T
+        us, vs = xs[..., 0] / xs[..., 2], xs[..., 1] / xs[..., 2]
+        inside = (xs[..., 2] > 0) & (us >= -0.5) & (us <= w - 0.5) & (vs >= -0.5) & (vs <= h - 0.5)
+        warped = map_coordinates(_normalised(src, p.sweep_window, p.min_texture), [vs, us], order=1, mode="nearest")
+        prod = np.where(inside, warped * ref_hat, -1.0)
+        want = 1.0 - uniform_filter(prod, p.sweep_window, mode="nearest")
+        err = np.abs(got[j] - want)
+        assert np.ptp(want) > 1.0
+        step = 2 * eng._PROD_RANGE / (65535 // p.sweep_window**2 - 1)  # one quantisation level of a product
+        assert err.max() < 0.5 * step + 1e-4  # at most half a level (products outside +-8 do not occur here)
