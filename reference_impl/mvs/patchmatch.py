@@ -594,6 +594,8 @@ def estimate_depth(
         raise InputError("estimate_depth: one camera per source image")
     if p.sweep_window % 2 != 1 or p.sweep_window < 3:
         raise InputError(f"sweep_window must be odd and >= 3, got {p.sweep_window}")
+    if not (isinstance(p.coarse_scale, int) and p.coarse_scale >= 1):
+        raise InputError(f"coarse_scale must be an integer >= 1, got {p.coarse_scale!r}")
     ref = to_gray(ref_image)
     if ref.shape != (ref_cam.height, ref_cam.width):
         raise InputError(f"reference image is {ref.shape[::-1]}, its camera says {(ref_cam.width, ref_cam.height)}")
