@@ -59,8 +59,13 @@ def job_environment(threads: int | None) -> dict[str, str]:
 
     Several jobs run side by side when there are several workers; a job whose libraries each start one thread per
     core (BLAS, OpenMP, Dr.Jit/Mitsuba through ``PLANTBENCH_THREADS``, see :mod:`plantbench.backend`) would then
-    oversubscribe the cores."""
+    oversubscribe the cores.
+
+    ``MALLOC_TRIM_THRESHOLD_`` is dropped: Dask's nanny sets it to 64 KiB in its workers
+    (``distributed.nanny.pre-spawn-environ``) to keep a long-lived worker's memory down, and a job process that
+    inherits it returns every freed array buffer to the kernel and faults it back in."""
     env = dict(os.environ)
+    env.pop("MALLOC_TRIM_THRESHOLD_", None)
     if threads is not None:
         n = str(max(1, int(threads)))
         for var in ("PLANTBENCH_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",

@@ -85,3 +85,10 @@ def test_job_environment_caps_thread_pools():
     assert env["PLANTBENCH_THREADS"] == env["OMP_NUM_THREADS"] == env["OPENBLAS_NUM_THREADS"] == "1"
     free = execute.job_environment(None)
     assert free.get("PLANTBENCH_THREADS") == execute.os.environ.get("PLANTBENCH_THREADS")
+
+
+def test_job_environment_drops_the_dask_nannys_malloc_trim(monkeypatch):
+    """A Dask worker's MALLOC_TRIM_THRESHOLD_ (its nanny's pre-spawn setting) does not reach the job processes."""
+    monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "65536")
+    assert "MALLOC_TRIM_THRESHOLD_" not in execute.job_environment(1)
+    assert "MALLOC_TRIM_THRESHOLD_" not in execute.job_environment(None)
