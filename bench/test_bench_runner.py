@@ -30,8 +30,14 @@ def test_quick_suite_local_1_worker(benchmark, tmp_path):
 @pytest.mark.benchmark(group="quick-suite")
 def test_quick_suite_dask_2_workers(benchmark, tmp_path):
     distributed = pytest.importorskip("dask.distributed")
+    import dask
+
+    from plantbench.runner.execute import DASK_WORKER_CONFIG
+
     suite = load_suite("quick")
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cl:
+    with dask.config.set(DASK_WORKER_CONFIG), distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cl:
         with distributed.Client(cl) as client:
             def run():
                 shutil.rmtree(tmp_path / "runs", ignore_errors=True)
