@@ -257,6 +257,8 @@ class _Engine:
                                      cam.K @ np.outer(t_rel, [0.0, 0.0, 1.0]) @ self.kinv))
         idx = self.dr.arange(jl.UInt32, self.n)
         self._xi, self._yi = jl.Int32(idx % self.w), jl.Int32(idx // self.w)
+        self._x, self._y = jl.Float(self._xi), jl.Float(self._yi)
+        self.dr.eval(self._xi, self._yi, self._x, self._y)
 
     # products of normalised values are clamped to +-_PROD_RANGE before quantisation (|z| <= sqrt(area - 1) bounds
     # them by 24 for a 5 x 5 window, but both factors beyond 2.8 sigma are rare)
@@ -274,8 +276,7 @@ class _Engine:
         self._sweep_setup()
         dr, jl, p = self.dr, self.jl, self.p
         w, h = self.w, self.h
-        xi, yi = self._xi, self._yi
-        x, y = jl.Float(xi), jl.Float(yi)
+        xi, yi, x, y = self._xi, self._yi, self._x, self._y
         rad = p.sweep_window // 2
         area = p.sweep_window**2
         levels = 65535 // area
@@ -321,6 +322,11 @@ class _Engine:
                 mean = total * (1.0 / (qscale * area)) - rng_
                 costs.append(1.0 - mean)
         return costs
+
+    def initial_planes(self, depths: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """PatchMatch's start: the sweep's depth and cost, and camera-frame normals from the depth's gradient."""
+        depth, cost = self.sweep(depths)
+        return depth, cost, _normals_from_depth(np.where(cost < 1.0, depth, np.nan), self.ref_cam.K)
 
     def sweep(self, depths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Winner-take-all depth (sub-plane refined) and its cost over fronto-parallel planes.
@@ -542,9 +548,11 @@ def _scaled_camera(cam: Camera, factor: int) -> Camera:
     return Camera(s @ cam.K, cam.R, cam.t, cam.width // factor, cam.height // factor)
 
 
-def _upsample_planes(depth: np.ndarray, normal: np.ndarray, coarse: Camera, fine: Camera, factor: int):
-    """Full-resolution depth and normal maps from coarse ones: each fine pixel takes the plane of the coarse pixel it
-    lies in (nearest: no planes blended across an occlusion edge), evaluated along its own ray."""
+def _upsample_planes(depth: np.ndarray, normal: np.ndarray, cost: np.ndarray, coarse: Camera, fine: Camera,
+                     factor: int):
+    """Full-resolution depth, normal and cost maps from coarse ones: each fine pixel takes the plane (and cost) of the
+    coarse pixel it lies in (nearest: no planes blended across an occlusion edge), the plane evaluated along its own
+    ray."""
     h, w = fine.height, fine.width
     yi = np.minimum(np.arange(h) // factor, depth.shape[0] - 1)
     xi = np.minimum(np.arange(w) // factor, depth.shape[1] - 1)
@@ -557,7 +565,7 @@ def _upsample_planes(depth: np.ndarray, normal: np.ndarray, coarse: Camera, fine
     with np.errstate(divide="ignore", invalid="ignore"):
         d = rho / np.einsum("hwc,hwc->hw", n, rays_f)
     d = np.where(np.isfinite(d) & (d > 0), d, depth[yc, xc])
-    return d.astype(np.float32), n.astype(np.float32)
+    return d.astype(np.float32), n.astype(np.float32), cost[yc, xc]
 
 
 def estimate_depth(
@@ -613,20 +621,15 @@ def estimate_depth(
         small = [cv2.resize(g, (g.shape[1] // f, g.shape[0] // f), interpolation=cv2.INTER_AREA) for g in [ref, *srcs]]
         cam_s = _scaled_camera(ref_cam, f)
         eng_s = _Engine(small[0], small[1:], cam_s, [_scaled_camera(c, f) for c in src_cams], p)
-        depth, cost = eng_s.sweep(depths)
-        normal_cam = _normals_from_depth(np.where(cost < 1.0, depth, np.nan), cam_s.K)
+        depth, cost, normal_cam = eng_s.initial_planes(depths)
         if refine and p.coarse_iterations > 0:
             depth, normal_cam, cost = eng_s.patchmatch(depth.astype(np.float32), normal_cam, near, far, rng,
                                                        iterations=range(p.coarse_iterations))
-        yi = np.minimum(np.arange(ref_cam.height) // f, cost.shape[0] - 1)
-        xi = np.minimum(np.arange(ref_cam.width) // f, cost.shape[1] - 1)
-        cost = cost[np.ix_(yi, xi)]
-        depth, normal_cam = _upsample_planes(depth, normal_cam, cam_s, ref_cam, f)
+        depth, normal_cam, cost = _upsample_planes(depth, normal_cam, cost, cam_s, ref_cam, f)
         start = p.coarse_iterations
     else:
         eng = _Engine(ref, srcs, ref_cam, src_cams, p)
-        depth, cost = eng.sweep(depths)
-        normal_cam = _normals_from_depth(np.where(cost < 1.0, depth, np.nan), ref_cam.K)
+        depth, cost, normal_cam = eng.initial_planes(depths)
         start = 0
     if refine and p.pm_iterations > 0:
         if f > 1:

@@ -227,7 +227,8 @@ def test_upsampled_planes_continue_each_coarse_plane(ring):
         return rho / (rays @ n)
 
     normals = np.broadcast_to(n, (coarse.height, coarse.width, 3)).astype(np.float32)
-    d, nn = _upsample_planes(plane_depth(coarse).astype(np.float32), normals, coarse, fine, 2)
+    cost = np.zeros((coarse.height, coarse.width), np.float32)
+    d, nn, _ = _upsample_planes(plane_depth(coarse).astype(np.float32), normals, cost, coarse, fine, 2)
     np.testing.assert_allclose(d, plane_depth(fine), rtol=1e-5)
     assert d.shape == (fine.height, fine.width) and np.allclose(nn, n, atol=1e-6)
 
