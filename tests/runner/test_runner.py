@@ -36,6 +36,11 @@ def test_failures_become_cells_and_rerun_reuses_everything(tmp_path, scripts):
     logs = {p.name: p.read_text() for p in (res.run_dir / "logs").iterdir()}
     assert any("method exploded on purpose" in text for text in logs.values())
     assert len(logs) == 3
+    # every job's status records when it ran (the run's timeline); the sleeper ran its whole timeout
+    recs = [json.loads(f.read_text()) for f in (tmp_path / "runs" / "cache").glob("*/*/status.json")]
+    assert recs and all(r["started"] <= r["finished"] for r in recs)
+    sleeper = next(r for r in recs if r["status"] == "timeout")
+    assert sleeper["finished"] - sleeper["started"] >= 20
     # the tidy table and metadata are on disk
     disk = pd.read_parquet(res.run_dir / "results.parquet")
     assert list(disk.columns) == ["case", "species", "family", "seed", "method", "sweep", "metric", "value", "status"]
