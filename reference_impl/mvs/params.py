@@ -40,22 +40,39 @@ class DepthParams:
     """Number of depth planes of the sweep, uniform in inverse depth over the view's depth range."""
     sweep_window: int = 5
     """Side of the square ZNCC window of the sweep, pixels (odd)."""
-    coarse_scale: int = 1
-    """Coarse to fine (a faster, less complete preset: ``coarse_scale=2`` with ``pm_checker``): the sweep and the
-    first ``coarse_iterations`` PatchMatch iterations run on the images downsampled by this factor, then
-    ``pm_iterations`` at full resolution; 1 (the default) runs everything at full resolution.
+    coarse_scale: int = 2
+    """Coarse to fine: the sweep and the first ``coarse_iterations`` PatchMatch iterations run on the images
+    downsampled by this factor, then ``pm_iterations`` at full resolution, with the checkerboard window
+    (``coarse_checker``) at both levels, a random depth as the fine level's fresh candidate (``fine_random_depth``)
+    and ``coarse_max_cost``; 1 runs everything at full resolution with the dense window (the default of sessions
+    3-5, about twice the time). Used only when the coarse image keeps ``coarse_min_size`` pixels on its shorter side.
 
-    Measured back to back on a 512 px view of the multiview peach (4 neighbours, 128 planes): the preset takes 0.38x
-    the time of the default (1.7 vs 4.5 s on a loaded machine; ~1.2 vs ~2.1-2.2 s idle). What it costs on the
-    20-view multiview clouds (accuracy = median distance / plant height, completeness at 1 % of height), default ->
-    preset: peach 0.44 % / 78 % -> 0.48 / 67, maple 0.41 / 74 -> 0.38 / 71, cercis 0.43 / 69 -> 0.47 / 65, wp_oak
-    0.46 / 74 -> 0.51 / 71; on the quick suite's 256 px views (coarse scale 128 px) completeness went from 2.1,
-    8.8, 7.5 cm to 2.7, 10.4, 9.7 cm and the methods' S_T fell by up to 0.07. The 4-px leaves are 1 px at the coarse
-    scale and come back only in part; without the coarse PatchMatch iterations, or with one full-resolution
-    iteration after them, peach completeness fell to 37-49 %. So it is not the default."""
+    Measured on the 20-view 512 px multiview captures (accuracy = median distance to the GT surface / plant height,
+    completeness = GT samples within 1 % of height), peach and maple: full resolution 0.434 % / 77.7 % and 0.412 /
+    74.2; session 5's coarse-to-fine preset (fine level continuing the coarse perturbation schedule, random normal,
+    max cost 0.6) 0.48 / 67.2 and 0.38 / 71.4; this default 0.473 / 76.3 and 0.397 / 77.9. Per-view time and the
+    other species in the closing note of issue 6."""
+    coarse_min_size: int = 256
+    """Coarse to fine only when the downsampled image's shorter side has at least this many pixels. The quick
+    suite's 256 px views (a 128 px coarse level, where the plants' leaves are sub-pixel) run at full resolution:
+    session 5's preset cost its clouds completeness (2.1, 8.8, 7.5 cm -> 2.7, 10.4, 9.7 cm) and the methods up to
+    0.07 S_T there."""
     coarse_iterations: int = 2
-    """PatchMatch iterations at the coarse scale, before the ``pm_iterations`` at full resolution (only with
-    ``coarse_scale`` > 1)."""
+    """PatchMatch iterations at the coarse scale, before the ``pm_iterations`` at full resolution (coarse to fine
+    only)."""
+    coarse_checker: bool = True
+    """Coarse to fine evaluates only the PatchMatch window samples with an even offset sum (a checkerboard: 13 of 25
+    for r = 2), the sparse sampling of Gipuma (Galliani et al. 2015)."""
+    fine_random_depth: bool = True
+    """At the fine level of coarse to fine, each pixel's fresh random candidate is a depth (uniform in inverse depth,
+    with its current normal) instead of a normal: the surfaces smaller than a coarse pixel (few-pixel leaves) are
+    in no coarse plane, so neither propagation nor small perturbations reach them. Peach, max cost 0.55: 0.48 % /
+    67.2 % (random normal, max cost 0.6) -> 0.409 / 67.7; a random depth as an eighth candidate beside the random
+    normal gave 0.447 / 71.8 at ~0.2 s more per view."""
+    coarse_max_cost: float = 0.57
+    """``max_cost`` of coarse to fine, whose final costs come from the 13-sample checkerboard window. Peach, accuracy
+    / completeness: 0.55 -> 0.409 % / 67.7 %, 0.57 -> 0.473 / 76.3 (with the random depth as an eighth candidate:
+    0.55 -> 0.447 / 71.8, 0.56 -> 0.497 / 74.1, 0.575 -> 0.576 / 79.5, 0.6 -> 0.913 / 83.1)."""
     top_k: int = 2
     """Matching cost = mean of the ``top_k`` best source costs (robust to occlusion in the other sources)."""
     pm_iterations: int = 2
@@ -66,10 +83,9 @@ class DepthParams:
     """Pixel spacing of the PatchMatch window samples (2 with r = 1 gives the sparse 3 x 3 sampling of a 5 x 5
     footprint, ~2.5x faster but measurably less accurate on fine texture)."""
     pm_checker: bool = False
-    """Use only the window samples with an even offset sum (a checkerboard: 13 of 25 for r = 2), the sparse
-    sampling of Gipuma (Galliani et al. 2015): ~1.8x faster PatchMatch. Alone (full-resolution sweep) it let through
-    far more wrong depths (peach: accuracy 0.44 -> 8.8 % of height, the filter keeping them); with the coarse
-    stage's planes (``coarse_scale``) it costs what is listed there."""
+    """Use the checkerboard window (see ``coarse_checker``) at full resolution too. Without a coarse level
+    (full-resolution sweep) it let through far more wrong depths (peach: accuracy 0.44 -> 8.8 % of height, the
+    filter keeping them)."""
     pm_textured_only: bool = False
     """Refine only the pixels textured enough to keep a depth (~25 % faster on views with sky), the others keeping
     their sweep plane. Off by default: untextured pixels refined by PatchMatch pass good planes on to their

@@ -11,13 +11,16 @@ by photo-consistency. We do it in two stages:
    refined by a parabola through the neighbouring planes' costs.
 2. **PatchMatch refinement** with slanted planes (Bleyer et al. 2011, Galliani et al. 2015 red-black scheme):
    every pixel tries its four neighbours' planes (propagation), two random perturbations of its own plane and a
-   random normal; normals start from the sweep's depth-map gradient;
+   random normal (a random depth at the fine level of coarse to fine); normals start from the sweep's depth-map
+   gradient;
    the cost is a bilateral-weighted ZNCC over a (2r+1)^2 window whose samples are mapped through the pixel's own
    plane by its homography (computed once per pixel and source; the window's weights once per pixel set).
-3. **Coarse to fine** (``coarse_scale`` > 1): the sweep and the first ``coarse_iterations`` of PatchMatch run on
-   the images downsampled by ``coarse_scale``; each full-resolution pixel then starts from the plane of the coarse
-   pixel it lies in and PatchMatch refines at full resolution. The coarse sweep's larger footprint also makes a
-   steadier start on thin, weakly textured structures (measured in :class:`~.params.DepthParams`).
+3. **Coarse to fine** (the default for views of >= 512 px, ``coarse_scale``, ``coarse_min_size``): the sweep and
+   the first ``coarse_iterations`` of PatchMatch run on the images downsampled by ``coarse_scale``; each
+   full-resolution pixel then starts from the plane of the coarse pixel it lies in and PatchMatch refines at full
+   resolution, where the fresh random candidate is a random depth instead of a random normal (surfaces smaller
+   than a coarse pixel are in no coarse plane). Both levels evaluate the checkerboard half of the window (Gipuma).
+   Measured in :class:`~.params.DepthParams`.
 
 The graph-cut global optimisation of the seed (Eq. 4) is replaced by this local PatchMatch plus the multi-view
 consistency filter of :mod:`.filtering` (see the module notes there). All pixels are processed at once as Dr.Jit
@@ -215,9 +218,11 @@ class _Mat:
 class _Engine:
     """Dr.Jit state shared by the sweep and PatchMatch for one reference view."""
 
-    def __init__(self, ref_gray, src_grays, ref_cam: Camera, src_cams: list[Camera], params: DepthParams):
+    def __init__(self, ref_gray, src_grays, ref_cam: Camera, src_cams: list[Camera], params: DepthParams,
+                 checker: bool = False):
         dr, jl = _drjit()
         self.dr, self.jl, self.p = dr, jl, params
+        self.checker = params.pm_checker or checker  # PatchMatch window: checkerboard samples only
         self.h, self.w = ref_gray.shape
         self.n = self.h * self.w
         self.ref_np = ref_gray
@@ -395,10 +400,11 @@ class _Engine:
         return {"x": x, "y": y, "wn": wn, "an": an, "vr": vr}
 
     def _offsets(self) -> list[tuple[int, int]]:
-        """Pixel offsets of the PatchMatch window samples (``pm_radius``, ``pm_step``, ``pm_checker``)."""
+        """Pixel offsets of the PatchMatch window samples (``pm_radius``, ``pm_step``; a checkerboard of them with
+        ``pm_checker`` or in coarse to fine)."""
         r, step = self.p.pm_radius, self.p.pm_step
         return [(ox * step, oy * step) for oy in range(-r, r + 1) for ox in range(-r, r + 1)
-                if not self.p.pm_checker or (ox + oy) % 2 == 0]
+                if not self.checker or (ox + oy) % 2 == 0]
 
     def _plane_cost(self, win, d, nx, ny, nz):
         """Bilateral-weighted ZNCC cost of plane (depth ``d`` at the pixel, camera-frame normal n) at the pixels of
@@ -461,11 +467,14 @@ class _Engine:
         return _top_k_mean(dr, costs, p.top_k)
 
     def patchmatch(self, depth0: np.ndarray, normal0: np.ndarray, near: float, far: float, rng: np.random.Generator,
-                   active: np.ndarray | None = None, iterations: range | None = None):
+                   active: np.ndarray | None = None, iterations: range | None = None, random_depth: bool = False):
         """Red-black PatchMatch over the pixels of ``active`` ((h, w) bool, all when None); the others keep their
         initial plane and get cost 2 (they take no part: neither updated nor, having cost 2, a useful neighbour).
         ``iterations``: the indices of the iterations to run (iteration i perturbs by 0.5^i), ``range(pm_iterations)``
-        by default."""
+        by default. ``random_depth``: the fresh random candidate of every pixel and iteration is a depth drawn
+        uniformly in inverse depth over the whole range with the pixel's normal (PatchMatch's random initialisation)
+        instead of a random normal at its depth: how the fine level of coarse to fine finds surfaces smaller than a
+        coarse pixel, which no coarse plane holds."""
         dr, jl, p = self.dr, self.jl, self.p
         near_o, far_o = self._opaque(near), self._opaque(far)
         w, h, n = self.w, self.h, self.n
@@ -473,15 +482,13 @@ class _Engine:
         n0 = normal0.reshape(-1, 3).astype(np.float32)
         nx, ny, nz = jl.Float(n0[:, 0]), jl.Float(n0[:, 1]), jl.Float(n0[:, 2])
         act = np.ones(n, bool) if active is None else np.asarray(active, bool).ravel()
-        act_idx = jl.UInt32(np.flatnonzero(act).astype(np.uint32))
-        cost = dr.full(jl.Float, 2.0, n)
-        dr.scatter(cost, self._plane_cost(self._window(act_idx), dr.gather(jl.Float, d, act_idx), dr.gather(jl.Float, nx, act_idx),
-                                          dr.gather(jl.Float, ny, act_idx), dr.gather(jl.Float, nz, act_idx)),
-                   act_idx)
-        dr.eval(cost)
         yy, xx = np.divmod(np.arange(n), w)
         colours = [jl.UInt32(np.flatnonzero(act & ((xx + yy) % 2 == c)).astype(np.uint32)) for c in (0, 1)]
         windows = [self._window(pidx) for pidx in colours]
+        cost = dr.full(jl.Float, 2.0, n)
+        for pidx, win in zip(colours, windows):  # the starting planes' costs
+            dr.scatter(cost, self._plane_cost(win, *(dr.gather(jl.Float, a, pidx) for a in (d, nx, ny, nz))), pidx)
+        dr.eval(cost)
         inv_span = 1.0 / near - 1.0 / far
         kinv = self.kinv_l
         for it in range(p.pm_iterations) if iterations is None else iterations:
@@ -515,9 +522,12 @@ class _Engine:
                 pd = 1.0 / dr.maximum(1.0 / cd + dq, 1e-6)
                 cands.append((pd, cnx + rnd[1] * (0.6 * sc), cny + rnd[2] * (0.6 * sc), cnz + rnd[3] * (0.6 * sc)))
                 cands.append((cd, cnx + rnd[4] * (0.3 * sc), cny - rnd[1] * (0.3 * sc), cnz))
-                # a fresh random normal (uniform on the sphere, flipped to face the camera) at the current depth
-                gz = rng.normal(size=(3, m)).astype(np.float32)
-                cands.append((cd, jl.Float(gz[0]), jl.Float(gz[1]), jl.Float(gz[2])))
+                if random_depth:  # a fresh random depth (uniform in inverse depth) with the current normal
+                    inv_d = rng.uniform(1.0 / far, 1.0 / near, m).astype(np.float32)
+                    cands.append((jl.Float(1.0 / inv_d), cnx, cny, cnz))
+                else:  # a fresh random normal (uniform on the sphere, flipped to face the camera) at the current depth
+                    gz = rng.normal(size=(3, m)).astype(np.float32)
+                    cands.append((cd, jl.Float(gz[0]), jl.Float(gz[1]), jl.Float(gz[2])))
                 for dd, ex, ey, ez in cands:
                     norm = dr.sqrt(ex * ex + ey * ey + ez * ez)
                     ex, ey, ez = ex / norm, ey / norm, ez / norm
@@ -556,16 +566,22 @@ def _upsample_planes(depth: np.ndarray, normal: np.ndarray, cost: np.ndarray, co
     h, w = fine.height, fine.width
     yi = np.minimum(np.arange(h) // factor, depth.shape[0] - 1)
     xi = np.minimum(np.arange(w) // factor, depth.shape[1] - 1)
-    yc, xc = np.meshgrid(yi, xi, indexing="ij")
-    rays_c = np.stack([xc, yc, np.ones_like(xc)], -1) @ np.linalg.inv(coarse.K).T
-    n = normal[yc, xc].astype(np.float64)
-    rho = depth[yc, xc] * np.einsum("hwc,hwc->hw", n, rays_c)  # n . X of the coarse pixel's point
-    u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
-    rays_f = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(fine.K).T
+    n_c = normal.astype(np.float64)
+    # the plane n . X = rho of each coarse pixel, rho from its own ray (K^-1 upper triangular: no full products)
+    kc = np.linalg.inv(coarse.K)
+    hc, wc = depth.shape
+    rx = kc[0, 0] * np.arange(wc)[None, :] + kc[0, 1] * np.arange(hc)[:, None] + kc[0, 2]
+    ry = np.broadcast_to(kc[1, 1] * np.arange(hc)[:, None] + kc[1, 2], (hc, wc))
+    rho = depth * (n_c[..., 0] * rx + n_c[..., 1] * ry + n_c[..., 2])
+    n = n_c[np.ix_(yi, xi)]
+    rho, d_c = rho[np.ix_(yi, xi)], depth[np.ix_(yi, xi)]
+    kf = np.linalg.inv(fine.K)
+    fx = kf[0, 0] * np.arange(w, dtype=float)[None, :] + kf[0, 1] * np.arange(h, dtype=float)[:, None] + kf[0, 2]
+    fy = (kf[1, 1] * np.arange(h, dtype=float) + kf[1, 2])[:, None]
     with np.errstate(divide="ignore", invalid="ignore"):
-        d = rho / np.einsum("hwc,hwc->hw", n, rays_f)
-    d = np.where(np.isfinite(d) & (d > 0), d, depth[yc, xc])
-    return d.astype(np.float32), n.astype(np.float32), cost[yc, xc]
+        d = rho / (n[..., 0] * fx + n[..., 1] * fy + n[..., 2])
+    d = np.where(np.isfinite(d) & (d > 0), d, d_c)
+    return d.astype(np.float32), n.astype(np.float32), cost[np.ix_(yi, xi)]
 
 
 def estimate_depth(
@@ -593,7 +609,8 @@ def estimate_depth(
 
     Returns
     -------
-    DepthMap (depth NaN where the final cost is above ``max_cost`` or the window is textureless)
+    DepthMap (depth NaN where the final cost is above ``max_cost`` (``coarse_max_cost`` in coarse to fine) or the
+    window is textureless)
     """
     p = params or DepthParams()
     if not src_images:
@@ -604,6 +621,8 @@ def estimate_depth(
         raise InputError(f"sweep_window must be odd and >= 3, got {p.sweep_window}")
     if not (isinstance(p.coarse_scale, int) and p.coarse_scale >= 1):
         raise InputError(f"coarse_scale must be an integer >= 1, got {p.coarse_scale!r}")
+    if not (isinstance(p.coarse_min_size, int) and p.coarse_min_size >= 1):
+        raise InputError(f"coarse_min_size must be an integer >= 1, got {p.coarse_min_size!r}")
     ref = to_gray(ref_image)
     if ref.shape != (ref_cam.height, ref_cam.width):
         raise InputError(f"reference image is {ref.shape[::-1]}, its camera says {(ref_cam.width, ref_cam.height)}")
@@ -613,34 +632,38 @@ def estimate_depth(
     _, std = _box_stats(ref, p.sweep_window)
     textured = std >= p.min_texture
     f = p.coarse_scale
-    if f > 1:
+    coarse = f > 1 and min(ref.shape) // f >= p.coarse_min_size
+    if coarse:
         # coarse to fine: the sweep and the first ``coarse_iterations`` of PatchMatch on the images downsampled by f
-        # (area averaging), then the planes carried to full resolution and refined there
+        # (area averaging), then the planes carried to full resolution and refined there, with random depths to
+        # find what the coarse level could not resolve
         import cv2
 
         small = [cv2.resize(g, (g.shape[1] // f, g.shape[0] // f), interpolation=cv2.INTER_AREA) for g in [ref, *srcs]]
         cam_s = _scaled_camera(ref_cam, f)
-        eng_s = _Engine(small[0], small[1:], cam_s, [_scaled_camera(c, f) for c in src_cams], p)
+        eng_s = _Engine(small[0], small[1:], cam_s, [_scaled_camera(c, f) for c in src_cams], p,
+                        checker=p.coarse_checker)
         depth, cost, normal_cam = eng_s.initial_planes(depths)
         if refine and p.coarse_iterations > 0:
             depth, normal_cam, cost = eng_s.patchmatch(depth.astype(np.float32), normal_cam, near, far, rng,
                                                        iterations=range(p.coarse_iterations))
         depth, normal_cam, cost = _upsample_planes(depth, normal_cam, cost, cam_s, ref_cam, f)
-        start = p.coarse_iterations
+        max_cost = p.coarse_max_cost
     else:
         eng = _Engine(ref, srcs, ref_cam, src_cams, p)
         depth, cost, normal_cam = eng.initial_planes(depths)
-        start = 0
+        max_cost = p.max_cost
     if refine and p.pm_iterations > 0:
-        if f > 1:
-            eng = _Engine(ref, srcs, ref_cam, src_cams, p)
+        if coarse:
+            eng = _Engine(ref, srcs, ref_cam, src_cams, p, checker=p.coarse_checker)
+        # each level runs its own schedule of perturbation scales (0.5^i, i = 0, 1, ...)
         depth, normal_cam, cost = eng.patchmatch(depth.astype(np.float32), normal_cam, near, far, rng,
                                                  active=textured if p.pm_textured_only else None,
-                                                 iterations=range(start, start + p.pm_iterations))
+                                                 random_depth=coarse and p.fine_random_depth)
     elif not refine:
         normal_cam = np.zeros(depth.shape + (3,), np.float32)
         normal_cam[..., 2] = -1.0
-    keep = (cost < p.max_cost) & textured & np.isfinite(depth) & (depth > near) & (depth < far)
+    keep = (cost < max_cost) & textured & np.isfinite(depth) & (depth > near) & (depth < far)
     depth = np.where(keep, depth, np.nan).astype(np.float32)
     normal = (normal_cam.reshape(-1, 3) @ ref_cam.R).reshape(normal_cam.shape)  # camera -> world: R^T n
     normal = np.where(keep[..., None], normal, np.nan).astype(np.float32)
