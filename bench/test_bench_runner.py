@@ -32,10 +32,10 @@ def test_quick_suite_dask_2_workers(benchmark, tmp_path):
     distributed = pytest.importorskip("dask.distributed")
     import dask
 
-    from plantbench.runner.execute import DASK_WORKER_CONFIG
+    from plantbench.runner.execute import DASK_CLUSTER_CONFIG
 
     suite = load_suite("quick")
-    with dask.config.set(DASK_WORKER_CONFIG), distributed.LocalCluster(
+    with dask.config.set(DASK_CLUSTER_CONFIG), distributed.LocalCluster(
         n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
     ) as cl:
         with distributed.Client(cl) as client:

@@ -160,7 +160,7 @@ def _execute_after(cache: str, job: dict, threads: int | None, *upstream: dict) 
     return execute_job(cache, job, threads)
 
 
-DASK_WORKER_CONFIG = {
+DASK_CLUSTER_CONFIG = {
     "distributed.worker.profile.enabled": False,
     "distributed.admin.tick.interval": "1s",
     "distributed.admin.system-monitor.interval": "5s",
@@ -237,7 +237,7 @@ def execute_plan(
             else:
                 import dask
 
-                with dask.config.set(DASK_WORKER_CONFIG):
+                with dask.config.set(DASK_CLUSTER_CONFIG):
                     client = Client(n_workers=workers, threads_per_worker=1)
         try:
             from dask.distributed import as_completed as dask_completed

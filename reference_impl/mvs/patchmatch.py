@@ -467,14 +467,14 @@ class _Engine:
         return _top_k_mean(dr, costs, p.top_k)
 
     def patchmatch(self, depth0: np.ndarray, normal0: np.ndarray, near: float, far: float, rng: np.random.Generator,
-                   active: np.ndarray | None = None, iterations: range | None = None, random_depth: bool = False):
+                   active: np.ndarray | None = None, iterations: int | None = None, random_depth: bool = False):
         """Red-black PatchMatch over the pixels of ``active`` ((h, w) bool, all when None); the others keep their
         initial plane and get cost 2 (they take no part: neither updated nor, having cost 2, a useful neighbour).
-        ``iterations``: the indices of the iterations to run (iteration i perturbs by 0.5^i), ``range(pm_iterations)``
-        by default. ``random_depth``: the fresh random candidate of every pixel and iteration is a depth drawn
-        uniformly in inverse depth over the whole range with the pixel's normal (PatchMatch's random initialisation)
-        instead of a random normal at its depth: how the fine level of coarse to fine finds surfaces smaller than a
-        coarse pixel, which no coarse plane holds."""
+        ``iterations``: how many to run (iteration i perturbs by 0.5^i), ``pm_iterations`` by default.
+        ``random_depth``: the fresh random candidate of every pixel and iteration is a depth drawn uniformly in inverse
+        depth over the whole range with the pixel's normal (PatchMatch's random initialisation) instead of a random
+        normal at its depth: how the fine level of coarse to fine finds surfaces smaller than a coarse pixel, which no
+        coarse plane holds."""
         dr, jl, p = self.dr, self.jl, self.p
         near_o, far_o = self._opaque(near), self._opaque(far)
         w, h, n = self.w, self.h, self.n
@@ -491,7 +491,7 @@ class _Engine:
         dr.eval(cost)
         inv_span = 1.0 / near - 1.0 / far
         kinv = self.kinv_l
-        for it in range(p.pm_iterations) if iterations is None else iterations:
+        for it in range(p.pm_iterations if iterations is None else iterations):
             scale = 0.5**it
             for c in (0, 1):
                 pidx = colours[c]
@@ -571,7 +571,7 @@ def _upsample_planes(depth: np.ndarray, normal: np.ndarray, cost: np.ndarray, co
     kc = np.linalg.inv(coarse.K)
     hc, wc = depth.shape
     rx = kc[0, 0] * np.arange(wc)[None, :] + kc[0, 1] * np.arange(hc)[:, None] + kc[0, 2]
-    ry = np.broadcast_to(kc[1, 1] * np.arange(hc)[:, None] + kc[1, 2], (hc, wc))
+    ry = (kc[1, 1] * np.arange(hc) + kc[1, 2])[:, None]
     rho = depth * (n_c[..., 0] * rx + n_c[..., 1] * ry + n_c[..., 2])
     n = n_c[np.ix_(yi, xi)]
     rho, d_c = rho[np.ix_(yi, xi)], depth[np.ix_(yi, xi)]
@@ -646,7 +646,7 @@ def estimate_depth(
         depth, cost, normal_cam = eng_s.initial_planes(depths)
         if refine and p.coarse_iterations > 0:
             depth, normal_cam, cost = eng_s.patchmatch(depth.astype(np.float32), normal_cam, near, far, rng,
-                                                       iterations=range(p.coarse_iterations))
+                                                       iterations=p.coarse_iterations)
         depth, normal_cam, cost = _upsample_planes(depth, normal_cam, cost, cam_s, ref_cam, f)
         max_cost = p.coarse_max_cost
     else:
