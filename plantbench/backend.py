@@ -111,12 +111,31 @@ def select_variant() -> str:
     return "scalar_rgb"
 
 
+def thread_budget() -> int | None:
+    """The number of threads this process may use: ``PLANTBENCH_THREADS`` when the runner set it (several jobs
+    sharing the cores; :func:`plantbench.runner.execute.job_environment`), else None (all cores).
+
+    OpenMP and BLAS read their own variables; libraries that size their pools from the core count alone (Dr.Jit,
+    scipy's cKDTree ``workers=-1``, Open3D's ray casting through Embree/TBB) are passed this explicitly."""
+    n = os.environ.get("PLANTBENCH_THREADS", "")
+    return int(n) if n.isdigit() and int(n) > 0 else None
+
+
+def kdtree_workers() -> int:
+    """``workers`` for scipy's cKDTree queries: the thread budget, else all cores (-1)."""
+    return thread_budget() or -1
+
+
+def open3d_threads() -> int:
+    """``nthreads`` for Open3D's RaycastingScene and its queries: the thread budget, else automatic (0)."""
+    return thread_budget() or 0
+
+
 def apply_thread_budget(dr) -> None:
-    """Cap Dr.Jit's (so Mitsuba's) thread pool at ``PLANTBENCH_THREADS`` when the runner set it (several jobs
-    sharing the cores; :func:`plantbench.runner.execute.job_environment`)."""
-    n = os.environ.get("PLANTBENCH_THREADS")
-    if n and n.isdigit() and int(n) > 0 and dr.thread_count() != int(n):
-        dr.set_thread_count(int(n))
+    """Cap Dr.Jit's (so Mitsuba's) thread pool at the thread budget (:func:`thread_budget`) when there is one."""
+    n = thread_budget()
+    if n and dr.thread_count() != n:
+        dr.set_thread_count(n)
 
 
 def load_mitsuba(variant: str | None = None):

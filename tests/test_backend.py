@@ -1,7 +1,7 @@
 import subprocess
 import sys
 
-from plantbench.backend import find_libllvm
+from plantbench.backend import find_libllvm, kdtree_workers, open3d_threads, thread_budget
 
 
 def test_variant_probe_never_kills_the_caller(tmp_path):
@@ -41,3 +41,14 @@ def test_bad_llvm_falls_back_to_scalar(tmp_path):
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "scalar_rgb"
     assert "BackendWarning" in out.stderr or "unavailable" in out.stderr
+
+
+def test_thread_budget_from_the_runner(monkeypatch):
+    """Libraries that size their pools from the core count get the runner's budget explicitly (else all cores)."""
+    monkeypatch.delenv("PLANTBENCH_THREADS", raising=False)
+    assert (thread_budget(), kdtree_workers(), open3d_threads()) == (None, -1, 0)
+    monkeypatch.setenv("PLANTBENCH_THREADS", "1")
+    assert (thread_budget(), kdtree_workers(), open3d_threads()) == (1, 1, 1)
+    for bad in ("0", "two", ""):
+        monkeypatch.setenv("PLANTBENCH_THREADS", bad)
+        assert thread_budget() is None

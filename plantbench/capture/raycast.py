@@ -74,8 +74,11 @@ class RayCaster:
         else:
             import open3d as o3d
 
+            from plantbench.backend import open3d_threads
+
             self._o3d = o3d
-            self._scene = o3d.t.geometry.RaycastingScene()
+            self._threads = open3d_threads()
+            self._scene = o3d.t.geometry.RaycastingScene(nthreads=self._threads)
             v = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3))
             vo = np.concatenate([[0], np.cumsum([len(p[0]) for p in parts])[:-1]]) if parts else []
             f = np.concatenate([p[1] + o for p, o in zip(parts, vo)]) if parts else np.zeros((0, 3), int)
@@ -132,7 +135,7 @@ class RayCaster:
         rays = np.empty((len(d), 6), np.float32)
         rays[:, :3] = o
         rays[:, 3:] = d
-        ans = self._scene.cast_rays(self._o3d.core.Tensor(rays))
+        ans = self._scene.cast_rays(self._o3d.core.Tensor(rays), nthreads=self._threads)
         t = ans["t_hit"].numpy().astype(np.float64)
         prim = ans["primitive_ids"].numpy().astype(np.int64)
         miss = ~np.isfinite(t)

@@ -109,7 +109,7 @@ def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike,
     from plantbench.metrics.points import cloud_metrics
     from plantbench.metrics.reprojection import render_silhouettes, reprojection_error
     from plantbench.metrics.skeleton import skeleton_attributes, skeleton_prf
-    from plantbench.metrics.stava import stava_similarity
+    from plantbench.metrics.stava import stava_similarities
     from plantbench.metrics.surface import distance_stats_cm, mesh_to_scan, point_to_mesh_distances, sample_surface
     from plantbench.plant import TriMesh
     from plantbench.seeding import rng as make_rng
@@ -125,11 +125,12 @@ def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike,
     mesh = recon.mesh
 
     # ---- Stava and skeleton
-    for prefix, split in (("stava", True), ("stava_nosplit", False)):
-        if plant is None or recon.skeleton is None:
+    if plant is None or recon.skeleton is None:
+        for prefix in ("stava", "stava_nosplit"):
             _set(values, reasons, prefix, None, no_plant if plant is None else "no skeleton.ply in the output")
-        else:
-            res = stava_similarity(plant.skeleton, recon.skeleton, params=options.stava, split_merge=split)
+    else:
+        both = stava_similarities(plant.skeleton, recon.skeleton, params=options.stava)
+        for prefix, res in zip(("stava", "stava_nosplit"), both):
             _set(values, reasons, prefix, res.as_dict())
     if plant is None or recon.skeleton is None:
         _set(values, reasons, "skeleton", None, no_plant if plant is None else "no skeleton.ply in the output")

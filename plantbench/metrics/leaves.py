@@ -2,10 +2,15 @@
 
 * DiC = N_pred - N_gt, |DiC|, relative error |DiC| / N_gt, accuracy = max(0, 1 - |DiC| / N_gt). With N_gt = 0 the
   relative error is None and the accuracy 1 when N_pred = 0, else 0.
-* Detection: ground-truth and predicted leaf centroids are matched one-to-one by the Hungarian algorithm on
-  Euclidean distance; a pair counts when its distance is at most ``radius`` (half the median ground-truth leaf
-  length in :func:`plantbench.metrics.evaluate.evaluate`). Precision = matches / N_pred, recall = matches / N_gt,
+* Detection: ground-truth and predicted leaf centroids are matched one-to-one (Hungarian matching on Euclidean
+  distance); a pair counts when its distance is at most ``radius`` (half the median ground-truth leaf length in
+  :func:`plantbench.metrics.evaluate.evaluate`). Precision = matches / N_pred, recall = matches / N_gt,
   F1 = 2PR / (P + R); 0 where a denominator is 0 (both empty: 1).
+
+  The number of matches is that of the Hungarian assignment whose pairs beyond ``radius`` cost a constant more
+  than any pair within it: the most pairs within the radius that a one-to-one matching can hold. That is a
+  maximum-cardinality matching of the radius graph, found by Hopcroft-Karp on the sparse graph (scipy) in
+  milliseconds where the dense assignment of 3000 x 3000 leaves took 16 s.
 """
 
 from __future__ import annotations
@@ -37,8 +42,9 @@ def leaf_detection(gt_centroids: np.ndarray, pred_centroids: np.ndarray, *, radi
 
     gt_centroids : (m, 3) float; pred_centroids : (n, 3) float; radius : match distance in metres (> 0)
     """
-    from scipy.optimize import linear_sum_assignment
-    from scipy.spatial.distance import cdist
+    from scipy.sparse import csr_array
+    from scipy.sparse.csgraph import maximum_bipartite_matching
+    from scipy.spatial import cKDTree
 
     g = check_shape("ground-truth leaf centroids", gt_centroids, (-1, 3), "f")
     p = check_shape("predicted leaf centroids", pred_centroids, (-1, 3), "f")
@@ -46,10 +52,13 @@ def leaf_detection(gt_centroids: np.ndarray, pred_centroids: np.ndarray, *, radi
         raise InputError(f"leaf_detection: radius must be > 0, got {radius}")
     matched = 0
     if len(g) and len(p):
-        d = cdist(g, p)
-        cost = np.where(d <= radius, d, 1e6 + d)  # pairs beyond the radius only when nothing better exists
-        r, c = linear_sum_assignment(cost)
-        matched = int(np.count_nonzero(d[r, c] <= radius))
+        near = cKDTree(g).query_ball_tree(cKDTree(p), r=radius)  # pred indices within radius (inclusive) of each gt
+        counts = np.fromiter((len(n) for n in near), np.int64, len(near))
+        if counts.any():
+            cols = np.fromiter((j for n in near for j in n), np.int32, int(counts.sum()))
+            indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+            graph = csr_array((np.ones(len(cols), np.int8), cols, indptr), shape=(len(g), len(p)))
+            matched = int(np.count_nonzero(maximum_bipartite_matching(graph, perm_type="column") >= 0))
     if not len(g) and not len(p):
         return {"precision": 1.0, "recall": 1.0, "f1": 1.0, "matched": 0.0}
     prec = matched / len(p) if len(p) else 0.0

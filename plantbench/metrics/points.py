@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from plantbench.errors import InputError
-from plantbench.metrics.surface import nearest_distances
+from plantbench.metrics.surface import kdtree, nearest_distances
 from plantbench.plant import check_shape
 
 __all__ = ["TAU_FRACTIONS", "tau_label", "cloud_metrics"]
@@ -68,8 +68,11 @@ def cloud_metrics(gt_points: np.ndarray, gt_labels: np.ndarray, pred_points: np.
     if not height > 0:
         raise InputError(f"cloud_metrics: plant height must be > 0, got {height}")
     max_dist = max_dist_fraction * height
-    d_pred, nearest = nearest_distances(gt, pred)
-    d_gt = nearest_distances(pred, gt)[0] if len(pred) else np.full(len(gt), np.inf)
+    gt_tree = kdtree(gt)  # each set's tree answers the other's queries and orders its own
+    pred_tree = kdtree(pred) if len(pred) else None
+    d_pred, nearest = nearest_distances(gt, pred, tree=gt_tree, query_tree=pred_tree)
+    d_gt = nearest_distances(pred, gt, tree=pred_tree, query_tree=gt_tree)[0] if len(pred) \
+        else np.full(len(gt), np.inf)
     out: dict[str, float | None] = {}
     for part, sel_gt, sel_pred in [("all", slice(None), slice(None))] + [
         (name, labels == lab, labels[nearest] == lab if len(pred) else np.zeros(0, bool))

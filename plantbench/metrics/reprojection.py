@@ -71,7 +71,9 @@ def render_silhouettes(mesh: TriMesh, cameras: list[Camera]) -> list[np.ndarray]
         return [np.zeros((c.height, c.width), bool) for c in cameras]
     import open3d as o3d
 
-    scene = o3d.t.geometry.RaycastingScene()
+    from plantbench.backend import open3d_threads
+
+    scene = o3d.t.geometry.RaycastingScene(nthreads=open3d_threads())
     scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
                         o3d.core.Tensor(mesh.faces.astype(np.uint32)))
     out = []
@@ -80,6 +82,6 @@ def render_silhouettes(mesh: TriMesh, cameras: list[Camera]) -> list[np.ndarray]
         rays = np.empty((len(dirs), 6), np.float32)
         rays[:, :3] = origin
         rays[:, 3:] = dirs
-        hit = scene.test_occlusions(o3d.core.Tensor(rays)).numpy()
+        hit = scene.test_occlusions(o3d.core.Tensor(rays), nthreads=open3d_threads()).numpy()
         out.append(hit.reshape(cam.height, cam.width).astype(bool))
     return out

@@ -48,7 +48,7 @@ def sample_skeleton(skeleton: Skeleton, step: float = 0.001) -> tuple[np.ndarray
 def skeleton_prf(gt: Skeleton, pred: Skeleton, *, thresholds: tuple[float, ...] = THRESHOLDS, step: float = 0.001
                  ) -> dict[str, float]:
     """Keys 'precision@t', 'recall@t', 'f1@t' for each threshold t (multiples of the local ground-truth radius)."""
-    from plantbench.metrics.surface import nearest_distances
+    from plantbench.metrics.surface import kdtree, nearest_distances
 
     g, rg = sample_skeleton(gt, step)
     p, _ = sample_skeleton(pred, step)
@@ -58,8 +58,9 @@ def skeleton_prf(gt: Skeleton, pred: Skeleton, *, thresholds: tuple[float, ...] 
 
         raise InputError("skeleton_prf: the ground-truth skeleton is empty")
     if len(p):
-        d_p, nearest = nearest_distances(g, p)
-        d_g, _ = nearest_distances(p, g)
+        tg, tp = kdtree(g), kdtree(p)
+        d_p, nearest = nearest_distances(g, p, tree=tg, query_tree=tp)
+        d_g, _ = nearest_distances(p, g, tree=tp, query_tree=tg)
     for t in thresholds:
         if len(p):
             prec = float(np.mean(d_p < t * rg[nearest]))

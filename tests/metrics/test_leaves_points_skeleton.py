@@ -33,6 +33,25 @@ def test_leaf_detection_hungarian():
         leaf_detection(gt, pred, radius=0)
 
 
+@pytest.mark.parametrize("m,n,radius", [(60, 80, 0.08), (200, 150, 0.05), (300, 300, 0.12), (40, 40, 1e-9)])
+def test_leaf_detection_matches_dense_hungarian(rng, m, n, radius):
+    """The matching count equals the dense Hungarian assignment's, pairs beyond the radius penalised (the
+    definition), on clustered centroids (many candidate pairs per leaf)."""
+    from scipy.optimize import linear_sum_assignment
+
+    centres = rng.random((max(m, n) // 4, 3))
+    gt = centres[rng.integers(0, len(centres), m)] + rng.normal(0, 0.03, (m, 3))
+    pred = centres[rng.integers(0, len(centres), n)] + rng.normal(0, 0.03, (n, 3))
+    d = np.sqrt(((gt[:, None] - pred[None]) ** 2).sum(-1))
+    r, c = linear_sum_assignment(np.where(d <= radius, d, 1e6 + d))
+    expected = int(np.count_nonzero(d[r, c] <= radius))
+    got = leaf_detection(gt, pred, radius=radius)
+    assert got["matched"] == expected
+    assert got["precision"] == pytest.approx(expected / n) and got["recall"] == pytest.approx(expected / m)
+    same = leaf_detection(gt, gt, radius=radius)
+    assert same["matched"] == m
+
+
 def test_cloud_metrics_brute_force(rng):
     gt = rng.random((200, 3))
     lab = (gt[:, 2] > 0.5).astype(np.int64)

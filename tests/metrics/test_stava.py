@@ -19,6 +19,7 @@ from plantbench.metrics.stava import (
     minkowski_mean,
     polyline_properties,
     shape_descriptors,
+    stava_similarities,
     stava_similarity,
     tree_edit_distance,
 )
@@ -109,6 +110,49 @@ def test_tree_edit_distance_matches_recursive_reference(max_chain):
         got, _ = tree_edit_distance(branch_graph(a), branch_graph(b), max_chain=max_chain)
         want = naive_tree_distance(a, b, max_chain)
         assert got == pytest.approx(want, rel=1e-9, abs=1e-12)
+
+
+def whorl_tree(rng: np.random.Generator, whorls: int, per_whorl: tuple[int, int]) -> Skeleton:
+    """A trunk with whorls of 2-7 laterals at one node each (a conifer's habit): branch-graph nodes of degree > 4,
+    the case the tree edit distance solves with a linear assignment instead of enumerating permutations."""
+    pos, rad, par = [np.zeros(3)], [0.03], [-1]
+    for w in range(whorls):
+        top = len(pos) - 1
+        for _ in range(2):  # two trunk segments up to the whorl node
+            pos.append(pos[top] + [0.0, 0.0, 0.1 + 0.02 * rng.random()])
+            rad.append(0.03 * (1 - 0.15 * (w + 1)))
+            par.append(top)
+            top = len(pos) - 1
+        for _ in range(int(rng.integers(*per_whorl))):
+            a = rng.uniform(0, 2 * np.pi)
+            d = np.array([np.cos(a), np.sin(a), rng.uniform(-0.3, 0.6)])
+            node = top
+            for i in range(int(rng.integers(1, 4))):
+                pos.append(pos[node] + 0.06 * d / np.linalg.norm(d) + rng.normal(0, 0.005, 3))
+                rad.append(0.01 * (1 - 0.2 * i))
+                par.append(node)
+                node = len(pos) - 1
+    return Skeleton(np.array(pos), np.array(rad), np.array(par))
+
+
+@pytest.mark.parametrize("max_chain", [1, 3])
+def test_tree_edit_distance_with_high_degree_nodes_matches_recursive_reference(max_chain):
+    for seed in range(4):
+        rng = np.random.default_rng(100 + seed)
+        a = whorl_tree(rng, 2, (5, 8))
+        b = whorl_tree(rng, 2, (2, 8)) if seed % 2 else prune_terminal(a, 0.4, rng)
+        g1, g2 = branch_graph(a), branch_graph(b)
+        assert max(len(k) for k in g1.children()) > 4
+        got, _ = tree_edit_distance(g1, g2, max_chain=max_chain)
+        assert got == pytest.approx(naive_tree_distance(a, b, max_chain), rel=1e-9, abs=1e-12)
+
+
+def test_stava_similarities_is_both_variants(rng):
+    a = random_tree(rng, 8)
+    b = bend(prune_terminal(a, 0.3, rng), 10.0, rng)
+    both = stava_similarities(a, b)
+    assert both == (stava_similarity(a, b, split_merge=True), stava_similarity(a, b, split_merge=False))
+    assert both[0].d_T <= both[1].d_T and both[0].d_S == both[1].d_S
 
 
 def test_split_merge_never_costs_more_and_helps_on_missing_side_branches(rng):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from plantbench.errors import InputError
-from plantbench.metrics.surface import mesh_to_scan, point_to_mesh_distances, sample_surface
+from plantbench.metrics.surface import kdtree, mesh_to_scan, nearest_distances, point_to_mesh_distances, sample_surface
 from plantbench.plant import TriMesh
 
 from .synth import cylinder
@@ -43,6 +43,23 @@ def closest_on_triangle(p, a, b, c):
 def brute_point_mesh(mesh, pts):
     return np.array([min(np.linalg.norm(p - closest_on_triangle(p, *mesh.vertices[f])) for f in mesh.faces)
                      for p in pts])
+
+
+@pytest.mark.parametrize("n_query", [500, 30_000])
+def test_nearest_distances_match_brute_force(rng, n_query):
+    """Small query sets go straight to the tree, large ones in the order of a tree over them: both give every
+    query its own nearest reference point, in the input order."""
+    ref = rng.random((400, 3))
+    query = rng.random((n_query, 3)) * 1.2 - 0.1
+    d, i = nearest_distances(ref, query)
+    for lo in range(0, n_query, 5000):
+        q = query[lo:lo + 5000]
+        full = np.sqrt(((q[:, None] - ref[None]) ** 2).sum(-1))
+        np.testing.assert_allclose(d[lo:lo + 5000], full.min(1), rtol=1e-12, atol=1e-15)
+        np.testing.assert_array_equal(i[lo:lo + 5000], full.argmin(1))
+    d2, i2 = nearest_distances(ref, query, tree=kdtree(ref), query_tree=kdtree(query))
+    np.testing.assert_array_equal(d2, d)
+    np.testing.assert_array_equal(i2, i)
 
 
 def test_mesh_to_scan_matches_brute_force(rng):
