@@ -110,7 +110,13 @@ def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike,
     from plantbench.metrics.reprojection import render_silhouettes, reprojection_error
     from plantbench.metrics.skeleton import skeleton_attributes, skeleton_prf
     from plantbench.metrics.stava import stava_similarities
-    from plantbench.metrics.surface import distance_stats_cm, mesh_to_scan, point_to_mesh_distances, sample_surface
+    from plantbench.metrics.surface import (
+        distance_stats_cm,
+        kdtree,
+        mesh_to_scan,
+        point_to_mesh_distances,
+        sample_surface,
+    )
     from plantbench.plant import TriMesh
     from plantbench.seeding import rng as make_rng
 
@@ -213,6 +219,7 @@ def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike,
 
     # ---- points and surface
     height = plant.height if plant is not None else 0.0
+    gt_tree = kdtree(gt_pts) if plant is not None and height > 0 else None  # for both cloud scores below
     if recon.points is None:
         _set(values, reasons, "points", None, "no points.ply in the output")
     else:
@@ -221,14 +228,15 @@ def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike,
             _set(values, reasons, "points", None, no_plant)
         else:
             _set(values, reasons, "points", cloud_metrics(gt_pts, gt_lab, recon.points, height=height,
-                                                          max_dist_fraction=options.max_dist_fraction),
+                                                          max_dist_fraction=options.max_dist_fraction,
+                                                          gt_tree=gt_tree),
                  "no ground-truth points of this part, or no reconstructed points")
     if mesh is None or plant is None or height <= 0:
         _set(values, reasons, "surface", None, "no mesh.ply in the output" if mesh is None else no_plant)
     else:
         pts, _ = sample_surface(mesh, options.recon_samples, make_rng(options.seed, "metrics", "recon-surface"))
         _set(values, reasons, "surface", cloud_metrics(gt_pts, gt_lab, pts, height=height,
-                                                       max_dist_fraction=options.max_dist_fraction),
+                                                       max_dist_fraction=options.max_dist_fraction, gt_tree=gt_tree),
              "no ground-truth points of this part, or an empty reconstructed surface")
     missing = set(METRICS) - set(values)
     if missing:

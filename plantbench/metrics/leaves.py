@@ -44,7 +44,8 @@ def leaf_detection(gt_centroids: np.ndarray, pred_centroids: np.ndarray, *, radi
     """
     from scipy.sparse import csr_array
     from scipy.sparse.csgraph import maximum_bipartite_matching
-    from scipy.spatial import cKDTree
+
+    from plantbench.metrics.surface import kdtree
 
     g = check_shape("ground-truth leaf centroids", gt_centroids, (-1, 3), "f")
     p = check_shape("predicted leaf centroids", pred_centroids, (-1, 3), "f")
@@ -52,13 +53,9 @@ def leaf_detection(gt_centroids: np.ndarray, pred_centroids: np.ndarray, *, radi
         raise InputError(f"leaf_detection: radius must be > 0, got {radius}")
     matched = 0
     if len(g) and len(p):
-        near = cKDTree(g).query_ball_tree(cKDTree(p), r=radius)  # pred indices within radius (inclusive) of each gt
-        counts = np.fromiter((len(n) for n in near), np.int64, len(near))
-        if counts.any():
-            cols = np.fromiter((j for n in near for j in n), np.int32, int(counts.sum()))
-            indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
-            graph = csr_array((np.ones(len(cols), np.int8), cols, indptr), shape=(len(g), len(p)))
-            matched = int(np.count_nonzero(maximum_bipartite_matching(graph, perm_type="column") >= 0))
+        pairs = kdtree(g).sparse_distance_matrix(kdtree(p), radius, output_type="ndarray")  # distance <= radius
+        graph = csr_array((np.ones(len(pairs), np.int8), (pairs["i"], pairs["j"])), shape=(len(g), len(p)))
+        matched = int(np.count_nonzero(maximum_bipartite_matching(graph, perm_type="column") >= 0))
     if not len(g) and not len(p):
         return {"precision": 1.0, "recall": 1.0, "f1": 1.0, "matched": 0.0}
     prec = matched / len(p) if len(p) else 0.0

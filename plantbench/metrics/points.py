@@ -44,8 +44,8 @@ def _prf(d_pred: np.ndarray, d_gt: np.ndarray, tau: float) -> tuple[float, float
 
 
 def cloud_metrics(gt_points: np.ndarray, gt_labels: np.ndarray, pred_points: np.ndarray, *, height: float,
-                  tau_fractions: tuple[float, ...] = TAU_FRACTIONS, max_dist_fraction: float = 0.1
-                  ) -> dict[str, float | None]:
+                  tau_fractions: tuple[float, ...] = TAU_FRACTIONS, max_dist_fraction: float = 0.1,
+                  gt_tree=None) -> dict[str, float | None]:
     """Accuracy, completeness, Chamfer and P/R/F at each tau for 'all', 'wood' and 'foliage'.
 
     Parameters
@@ -54,6 +54,8 @@ def cloud_metrics(gt_points: np.ndarray, gt_labels: np.ndarray, pred_points: np.
     gt_labels : (m,) int, 0 wood, 1 foliage
     pred_points : (n, 3) float, reconstructed points (or samples of the reconstructed surface)
     height : ground-truth plant height in metres (> 0); tau = fraction * height, max_dist = max_dist_fraction * height
+    gt_tree : a k-d tree over ``gt_points`` (:func:`~plantbench.metrics.surface.kdtree`) when the caller scores
+        several reconstructions against them; built here otherwise
 
     Returns
     -------
@@ -68,7 +70,7 @@ def cloud_metrics(gt_points: np.ndarray, gt_labels: np.ndarray, pred_points: np.
     if not height > 0:
         raise InputError(f"cloud_metrics: plant height must be > 0, got {height}")
     max_dist = max_dist_fraction * height
-    gt_tree = kdtree(gt)  # each set's tree answers the other's queries and orders its own
+    gt_tree = kdtree(gt) if gt_tree is None else gt_tree  # each set's tree answers the other's queries, orders its own
     pred_tree = kdtree(pred) if len(pred) else None
     d_pred, nearest = nearest_distances(gt, pred, tree=gt_tree, query_tree=pred_tree)
     d_gt = nearest_distances(pred, gt, tree=pred_tree, query_tree=gt_tree)[0] if len(pred) \

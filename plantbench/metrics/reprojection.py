@@ -73,7 +73,8 @@ def render_silhouettes(mesh: TriMesh, cameras: list[Camera]) -> list[np.ndarray]
 
     from plantbench.backend import open3d_threads
 
-    scene = o3d.t.geometry.RaycastingScene(nthreads=open3d_threads())
+    nthreads = open3d_threads()
+    scene = o3d.t.geometry.RaycastingScene(nthreads=nthreads)
     scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
                         o3d.core.Tensor(mesh.faces.astype(np.uint32)))
     out = []
@@ -82,6 +83,6 @@ def render_silhouettes(mesh: TriMesh, cameras: list[Camera]) -> list[np.ndarray]
         rays = np.empty((len(dirs), 6), np.float32)
         rays[:, :3] = origin
         rays[:, 3:] = dirs
-        hit = scene.test_occlusions(o3d.core.Tensor(rays), nthreads=open3d_threads()).numpy()
+        hit = scene.test_occlusions(o3d.core.Tensor(rays), nthreads=nthreads).numpy()
         out.append(hit.reshape(cam.height, cam.width).astype(bool))
     return out
