@@ -4,24 +4,34 @@ With a wrong LLVM (Debian's 15 or 16), Dr.Jit aborts the whole interpreter (SIGA
 kernel that uses ``dr.minimum``. So the LLVM variant is probed once in a subprocess that renders a tiny scene
 and evaluates ``dr.minimum``; the answer is cached per (mitsuba version, libLLVM path) under the user cache.
 ``llvm_ad_rgb`` is used when the probe passes, otherwise ``scalar_rgb`` with a warning.
+
+Dr.Jit's LLVM backend compiles its kernels for the host CPU by default: on an AVX-512 machine it uses 16-wide
+vectors and other intrinsics (the 14-bit ``rsqrt14`` beside AVX's 12-bit ``rsqrt``) than on an AVX2 one, so renders
+and mvs depth maps would change with the machine. :func:`pin_llvm_target` fixes the code generation to one
+instruction set and vector width (:data:`PINNED_TARGET`, AVX2 at width 8) on every x86-64 machine, through drjit-core's
+exported ``jit_llvm_set_target`` (its Python bindings do not wrap it), before the first kernel.
 """
 
 from __future__ import annotations
 
+import ctypes
 import functools
 import hashlib
 import json
 import os
+import platform
 import subprocess
 import sys
 import warnings
+from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 from plantbench.paths import cache_dir
 
 __all__ = ["LLVM_CANDIDATES", "find_libllvm", "select_variant", "load_mitsuba", "apply_thread_budget",
-           "BackendWarning"]
+           "BackendWarning", "LLVMTarget", "PINNED_TARGET", "requested_llvm_target", "pin_llvm_target",
+           "current_llvm_target", "load_drjit"]
 
 LLVM_CANDIDATES = (
     "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1",
@@ -138,13 +148,153 @@ def apply_thread_budget(dr) -> None:
         dr.set_thread_count(n)
 
 
+@dataclass(frozen=True)
+class LLVMTarget:
+    """What Dr.Jit's LLVM backend compiles kernels for.
+
+    cpu : LLVM CPU name ('haswell')
+    features : LLVM feature list ('+avx2,+fma,...'); Dr.Jit picks its intrinsics by searching it
+    width : vector width in 32-bit lanes (8 for AVX2); a power of two
+    """
+
+    cpu: str
+    features: str
+    width: int
+
+    def spec(self) -> str:
+        """'cpu:features:width', the form :envvar:`PLANTBENCH_LLVM_TARGET` takes."""
+        return f"{self.cpu}:{self.features}:{self.width}"
+
+
+PINNED_TARGET = LLVMTarget("haswell", "+avx,+avx2,+fma,+f16c,+bmi,+bmi2,+lzcnt,+popcnt,+sse4.2,+sse4.1,+ssse3,+sse3",
+                           8)
+"""The code generation every x86-64 machine uses: AVX2 + FMA at width 8, which any x86-64 CPU since 2013 (Intel
+Haswell, AMD Zen) runs. AVX-512 machines run it too; they would otherwise pick 16-wide kernels."""
+
+_HOST = "host"
+
+
+def requested_llvm_target() -> LLVMTarget | None:
+    """The target asked for: :data:`PINNED_TARGET`, or ``PLANTBENCH_LLVM_TARGET`` when set ('host': leave Dr.Jit's
+    own choice for this CPU, returned as None; or 'cpu:features:width'). Not x86-64: None (the pin is x86 code)."""
+    from plantbench.errors import InputError
+
+    value = os.environ.get("PLANTBENCH_LLVM_TARGET", "").strip()
+    if value == _HOST:
+        return None
+    if value:
+        parts = value.split(":")
+        if len(parts) != 3 or not parts[2].isdigit() or int(parts[2]) & (int(parts[2]) - 1) or int(parts[2]) < 1:
+            raise InputError(f"PLANTBENCH_LLVM_TARGET must be 'host' or 'cpu:features:width' with a power-of-two "
+                             f"width, got {value!r}")
+        return LLVMTarget(parts[0], parts[1], int(parts[2]))
+    if platform.machine().lower() not in ("x86_64", "amd64"):
+        return None
+    return PINNED_TARGET
+
+
+_CPUINFO_FLAG = {"bmi": "bmi1", "lzcnt": "abm", "sse3": "pni", "sse4.1": "sse4_1", "sse4.2": "sse4_2"}
+"""LLVM feature names that /proc/cpuinfo spells otherwise (the rest are the same)."""
+
+
+def _host_has(features: str) -> bool:
+    """True when /proc/cpuinfo lists every '+feature' of ``features`` (False when it cannot be read)."""
+    try:
+        with open("/proc/cpuinfo") as fh:
+            flags = set(next(line for line in fh if line.startswith("flags")).split(":", 1)[1].split())
+    except (OSError, StopIteration, IndexError):
+        return False
+    need = {_CPUINFO_FLAG.get(f[1:], f[1:]) for f in features.split(",") if f.startswith("+")}
+    return need <= flags
+
+
+def _jit_core(dr):
+    """drjit-core's C++ entry points for the LLVM target (exported by libdrjit-core.so, not bound in Python)."""
+    lib = ctypes.CDLL(str(Path(dr.__file__).parent / "libdrjit-core.so"), mode=os.RTLD_NOLOAD | os.RTLD_GLOBAL)
+    set_target = lib._Z19jit_llvm_set_targetPKcS0_j
+    set_target.argtypes, set_target.restype = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint32], None
+    cpu, features, width = (lib._Z19jit_llvm_target_cpuv, lib._Z24jit_llvm_target_featuresv,
+                            lib._Z21jit_llvm_vector_widthv)
+    cpu.restype = features.restype = ctypes.c_char_p
+    width.restype = ctypes.c_uint32
+    return set_target, cpu, features, width
+
+
+def current_llvm_target(dr=None) -> LLVMTarget | None:
+    """What Dr.Jit's LLVM backend compiles for now (None when its LLVM backend is not loaded)."""
+    if dr is None:
+        import drjit as dr
+    if not dr.has_backend(dr.JitBackend.LLVM):
+        return None
+    _, cpu, features, width = _jit_core(dr)
+    return LLVMTarget(cpu().decode(), (features() or b"").decode(), int(width()))
+
+
+def pin_llvm_target(dr=None) -> LLVMTarget | None:
+    """Set Dr.Jit's LLVM code generation to :func:`requested_llvm_target` (idempotent; kernels compiled before keep
+    their target, later ones use the new one: the kernel caches are keyed by it). Returns the target in force, or
+    None when Dr.Jit's own host choice stays (asked for, not x86-64, or no LLVM backend).
+
+    A CPU without the pinned target's features (an x86-64 CPU older than AVX2) keeps its host target with a
+    :class:`BackendWarning`: its renders are not comparable with other machines'."""
+    if dr is None:
+        import drjit as dr
+    target = requested_llvm_target()
+    if target is None or not dr.has_backend(dr.JitBackend.LLVM):
+        return None
+    if os.environ.get("PLANTBENCH_LLVM_TARGET") is None and not _host_has(target.features):
+        warnings.warn(f"this CPU lacks {target.features}: Dr.Jit keeps its host target, and renders and mvs depth "
+                      "are not comparable with other machines'", BackendWarning, stacklevel=2)
+        return None
+    set_target, *_ = _jit_core(dr)
+    now = current_llvm_target(dr)
+    if now != target:
+        set_target(target.cpu.encode(), target.features.encode(), target.width)
+        now = current_llvm_target(dr)
+        if now is None or (now.cpu, now.width) != (target.cpu, target.width):
+            raise RuntimeError(f"jit_llvm_set_target({target}) did not take: Dr.Jit reports {now}")
+    return target
+
+
+def llvm_target_id() -> str:
+    """What the requested target changes in outputs, for cache keys: its spec, or 'host:<cpu>' when unpinned."""
+    target = requested_llvm_target()
+    if target is not None:
+        return target.spec()
+    return f"host:{platform.machine()}:{_host_cpu_name()}"
+
+
+def _host_cpu_name() -> str:
+    try:
+        with open("/proc/cpuinfo") as fh:
+            return next(line for line in fh if line.startswith("model name")).split(":", 1)[1].strip()
+    except (OSError, StopIteration, IndexError):
+        return platform.processor() or "unknown"
+
+
+def load_drjit():
+    """Import drjit with the LLVM target pinned (:func:`pin_llvm_target`) and the thread budget applied; returns
+    (drjit, drjit.llvm)."""
+    llvm = find_libllvm()
+    if llvm:
+        os.environ.setdefault("DRJIT_LIBLLVM_PATH", llvm)
+    import drjit as dr
+    import drjit.llvm as jl
+
+    pin_llvm_target(dr)
+    apply_thread_budget(dr)
+    return dr, jl
+
+
 def load_mitsuba(variant: str | None = None):
-    """Import mitsuba with the selected variant set; returns the module."""
+    """Import mitsuba with the selected variant set and Dr.Jit's LLVM target pinned; returns the module."""
     chosen = variant or select_variant()
     import drjit as dr
     import mitsuba as mi
 
     if mi.variant() != chosen:
         mi.set_variant(chosen)
+    if chosen.startswith("llvm"):
+        pin_llvm_target(dr)
     apply_thread_budget(dr)
     return mi

@@ -31,6 +31,9 @@ class CaptureSettings(Strict):
     elevation: tuple[float, float] = Field(default=(5.0, 45.0), description="degrees above the horizon, low and high")
     scan: bool = Field(default=True, description="also simulate a terrestrial laser scan")
     stations: int = Field(default=1, ge=1, le=16, description="scanner stations on a circle")
+    image_noise: int = Field(default=0, ge=0, le=16,
+                             description="grey levels of uniform integer noise added to each image channel (0: none; "
+                                         "the variability study uses 1)")
 
     @model_validator(mode="after")
     def _elevation_order(self):

@@ -82,6 +82,13 @@ def _versions() -> dict[str, str | None]:
     return out
 
 
+def add_grey_noise(image: np.ndarray, levels: int, generator: np.random.Generator) -> np.ndarray:
+    """``image`` (uint8) plus independent integer noise uniform in [-levels, levels] per pixel and channel, clipped
+    to [0, 255]: sensor noise below what any method should notice (the variability study's +-1 grey level)."""
+    noise = generator.integers(-levels, levels + 1, size=image.shape, dtype=np.int16)
+    return np.clip(image.astype(np.int16) + noise, 0, 255).astype(np.uint8)
+
+
 def _save_png(path: Path, array: np.ndarray) -> None:
     from PIL import Image
 
@@ -112,7 +119,7 @@ def capture_case(case_dir: str | os.PathLike, settings: Any = None, *, seed: int
     if len(plant.leaf_mesh_ids) and (plant.leaf_mesh_ids.min() < 0 or plant.leaf_mesh_ids.max() > _MAX_LEAF_ID):
         raise InputError(f"leaf ids must lie in [0, {_MAX_LEAF_ID}] for uint16 instance maps", path=case / "plant")
 
-    from plantbench.backend import load_mitsuba
+    from plantbench.backend import llvm_target_id, load_mitsuba
     from plantbench.capture.scene import scene_dict
 
     timings: dict[str, float] = {}
@@ -142,6 +149,7 @@ def capture_case(case_dir: str | os.PathLike, settings: Any = None, *, seed: int
             "seed": int(seed),
             "plant": {"species": plant_json.species, "seed": plant_json.seed, "height": plant_json.height},
             "mitsuba_variant": mi.variant(),
+            "llvm_target": llvm_target_id() if mi.variant().startswith("llvm") else None,
             "ray_caster": caster.backend,
             "versions": _versions(),
             "images": [f"{i:04d}.png" for i in range(len(cameras))],
@@ -214,6 +222,8 @@ def _write_views(folder: Path, plant: Plant, cameras: list[Camera], scene, gt, c
         t0 = time.perf_counter()
         rgb = to_srgb8(render_colour(scene, i, spp=options.spp, seed=derive_seed(seed, "capture", "render", i) % 2**32,
                                      mi=mi))
+        if options.image_noise:
+            rgb = add_grey_noise(rgb, options.image_noise, rng(seed, "capture", "image_noise", i))
         _save_png(folder / "images" / names[i], rgb)
         t1 = time.perf_counter()
         maps = exact_maps(cam, gt, caster, normals=options.normals)

@@ -202,6 +202,7 @@ class Plan:
 
 def make_plan(suite: Suite, methods: list[str] | None = None) -> Plan:
     """Expand ``suite`` (and its sweep) into jobs and cells. Unknown species or methods raise before any work."""
+    from plantbench.backend import llvm_target_id
     from plantbench.species import load_species, species
 
     method_names = methods or suite.methods
@@ -215,6 +216,8 @@ def make_plan(suite: Suite, methods: list[str] | None = None) -> Plan:
         "capture": code_hash("plantbench/capture"),
         "metrics": code_hash("plantbench/metrics"),
         "runner": code_hash("plantbench/runner/worker.py"),
+        # Dr.Jit's code generation changes renders and mvs depth: part of every key downstream of the capture
+        "llvm": llvm_target_id(),
     }
     for sweep_value, s in variants:
         for case_set in s.cases:
@@ -227,7 +230,7 @@ def make_plan(suite: Suite, methods: list[str] | None = None) -> Plan:
                     timeout_s=s.timeout_s))
                 capture = s.capture.model_dump(mode="json")
                 case_key = plan.add(Job("capture", content_hash(
-                    ["capture", plant_key, capture, s.root_seed, version_code["capture"]]),
+                    ["capture", plant_key, capture, s.root_seed, version_code["capture"], version_code["llvm"]]),
                     {"plant": plant_key, "settings": capture, "seed": seed, "root_seed": s.root_seed},
                     deps=(plant_key,), timeout_s=s.timeout_s))
                 case_id = f"{case_set.species}-{seed}" + (f"@{sweep_value}" if sweep_value is not None else "")
@@ -241,7 +244,7 @@ def make_plan(suite: Suite, methods: list[str] | None = None) -> Plan:
                     options = s.method_options.get(name, {})
                     recon_key = plan.add(Job("method", content_hash(
                         ["method", name, _method_code_hash(method), deps, options, seed, case_set.species,
-                         version_code["runner"]]),
+                         version_code["runner"], version_code["llvm"]]),
                         {"method": name, "case": case_key, "points": points_key if method.inputs == "points" else None,
                          "seed": seed, "species": case_set.species, "options": options},
                         deps=tuple(deps), timeout_s=s.timeout_s))
@@ -261,7 +264,8 @@ def _points_job(plan: Plan, s: Suite, case_key: str, seed: int, species: str, ve
     mvs = method_from_spec("mvs")
     options = s.method_options.get("mvs", {})
     recon = plan.add(Job("method", content_hash(
-        ["method", "mvs", _method_code_hash(mvs), [case_key], options, seed, species, version_code["runner"]]),
+        ["method", "mvs", _method_code_hash(mvs), [case_key], options, seed, species, version_code["runner"],
+         version_code["llvm"]]),
         {"method": "mvs", "case": case_key, "points": None, "seed": seed, "species": species, "options": options},
         deps=(case_key,), timeout_s=s.timeout_s))
     return plan.add(Job("points", content_hash(["points", "views", recon, version_code["runner"]]),

@@ -65,7 +65,7 @@ def _git_sha() -> str | None:
 def run_metadata(suite: Suite, methods: list[str]) -> dict:
     """What every results file records: versions, git SHA, config hash, Mitsuba variant."""
     from plantbench import __version__
-    from plantbench.backend import select_variant
+    from plantbench.backend import llvm_target_id, select_variant
 
     pkgs = {}
     for name in PACKAGES:
@@ -83,6 +83,7 @@ def run_metadata(suite: Suite, methods: list[str]) -> dict:
         "config_hash": content_hash([config, methods]),
         "root_seed": suite.root_seed,
         "mitsuba_variant": select_variant(),
+        "llvm_target": llvm_target_id(),
         "packages": pkgs,
         "python": platform.python_version(),
         "platform": platform.platform(),

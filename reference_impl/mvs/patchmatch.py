@@ -31,7 +31,6 @@ kernels on the CPU.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,16 +75,9 @@ def sweep_depths(near: float, far: float, count: int) -> np.ndarray:
 
 
 def _drjit():
-    from plantbench.backend import apply_thread_budget, find_libllvm
+    from plantbench.backend import load_drjit
 
-    llvm = find_libllvm()
-    if llvm:
-        os.environ.setdefault("DRJIT_LIBLLVM_PATH", llvm)
-    import drjit as dr
-    import drjit.llvm as jl
-
-    apply_thread_budget(dr)
-    return dr, jl
+    return load_drjit()
 
 
 def _relative(ref: Camera, src: Camera) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,126 @@
+"""Dr.Jit's LLVM code generation is pinned, so renders and mvs depth maps do not depend on the machine's CPU.
+
+Each child process starts as if on another CPU (Dr.Jit's target set to a pretend host before plantbench loads it),
+renders a small plant with Mitsuba and estimates one mvs depth map, and prints hashes of the outputs. With the pin
+(the default) the pretend hosts give identical bytes; without it (``PLANTBENCH_LLVM_TARGET=host``) they differ,
+which shows the comparison can fail. The pretend hosts run on any x86-64 CPU with AVX2; on an AVX-512 CPU the
+16-wide host target is tried too.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import subprocess
+import sys
+
+import pytest
+
+from plantbench.backend import PINNED_TARGET, _host_has, find_libllvm
+from plantbench.paths import project_root
+
+AVX2_WIDTH_4 = PINNED_TARGET.spec()[: -len(str(PINNED_TARGET.width))] + "4"
+AVX512_WIDTH_16 = ("skylake-avx512:+avx512f,+avx512dq,+avx512vl,+avx512bw,+avx512cd,+avx2,+avx,+fma,+f16c,+bmi,+bmi2,"
+                   "+popcnt,+sse4.2:16")
+
+CHILD = r"""
+import hashlib, json, os, sys
+from pathlib import Path
+import numpy as np
+from plantbench import backend
+os.environ["DRJIT_LIBLLVM_PATH"] = backend.find_libllvm()
+import drjit as dr
+cpu, features, width = sys.argv[1].split(":")
+set_target = backend._jit_core(dr)[0]
+set_target(cpu.encode(), features.encode(), int(width))           # the pretend host's own choice
+
+from PIL import Image
+from plantbench.cameras import read_cameras
+from plantbench.capture import CaptureOptions, capture_case
+from tests.capture.plants import write_test_plant
+from reference_impl.mvs.neighbours import depth_range, scene_centre
+from reference_impl.mvs.params import DepthParams
+from reference_impl.mvs.patchmatch import estimate_depth
+
+case = Path(sys.argv[2])
+write_test_plant(case, height=2.0)
+capture_case(case, CaptureOptions(views=6, width=96, height=96, spp=4, elevation=(20.0, 20.0), scan=False), seed=3)
+out = {"target": backend.current_llvm_target(dr).spec()}
+for sub in ("images", "depth"):
+    h = hashlib.sha256()
+    for f in sorted((case / "views" / sub).iterdir()):
+        h.update(f.read_bytes())
+    out[sub] = h.hexdigest()
+
+# mvs on the rendered views: view 0 against its two neighbours on the ring
+cams, names = read_cameras(case / "views" / "cameras.json")
+imgs = [np.asarray(Image.open(case / "views" / "images" / n)) for n in names]
+near, far = depth_range(cams[0], scene_centre(cams), 1.25)
+dm = estimate_depth(imgs[0], [imgs[1], imgs[5]], cams[0], [cams[1], cams[5]], (near, far),
+                    DepthParams(hypotheses=32, pm_iterations=1), rng=np.random.default_rng(0))
+out["mvs_depth"] = hashlib.sha256(np.ascontiguousarray(dm.depth).tobytes()).hexdigest()
+out["mvs_finite"] = int(np.isfinite(dm.depth).sum())
+print(json.dumps(out))
+"""
+
+pytestmark = pytest.mark.skipif(
+    platform.machine().lower() not in ("x86_64", "amd64") or not find_libllvm() or not _host_has(PINNED_TARGET.features),
+    reason="needs an x86-64 CPU with AVX2 and LLVM 19 (the pinned target)")
+
+
+def _child(host: str, folder, *, pin: bool = True) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(project_root()), PLANTBENCH_THREADS="1")
+    env.pop("PLANTBENCH_LLVM_TARGET", None)
+    if not pin:
+        env["PLANTBENCH_LLVM_TARGET"] = "host"
+    proc = subprocess.run([sys.executable, "-c", CHILD, host, str(folder)], capture_output=True, text=True,
+                          env=env, timeout=600, cwd=project_root())
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    hosts = [AVX2_WIDTH_4, PINNED_TARGET.spec()] + ([AVX512_WIDTH_16] if _host_has("+avx512f,+avx512dq,+avx512vl,+avx512bw")
+                                                   else [])
+    base = tmp_path_factory.mktemp("llvm")
+    pinned = {h: _child(h, base / f"pinned{i}") for i, h in enumerate(hosts)}
+    unpinned = {h: _child(h, base / f"host{i}", pin=False) for i, h in enumerate(hosts[:2])}
+    return pinned, unpinned
+
+
+def test_pinned_outputs_do_not_depend_on_the_host_target(runs):
+    pinned, _ = runs
+    first = next(iter(pinned.values()))
+    assert first["mvs_finite"] > 500  # the depth map is not empty
+    for host, out in pinned.items():
+        assert out["target"] == PINNED_TARGET.spec(), host
+        assert out == first, f"pretend host {host} gave other outputs"
+
+
+def test_unpinned_outputs_do_depend_on_it(runs):
+    """Without the pin, AVX2 at width 4 and at width 8 give other renders and so other mvs depth: the comparison
+    above would catch a pin that did not take. The exact depth maps are ray cast, not shaded: identical either way."""
+    _, unpinned = runs
+    four, eight = unpinned[AVX2_WIDTH_4], unpinned[PINNED_TARGET.spec()]
+    assert four["target"].endswith(":4") and eight["target"].endswith(":8")
+    assert four["images"] != eight["images"]
+    assert four["mvs_depth"] != eight["mvs_depth"]
+    assert four["depth"] == eight["depth"]
+
+
+def test_target_spec_from_the_environment(monkeypatch):
+    from plantbench.backend import LLVMTarget, requested_llvm_target
+    from plantbench.errors import InputError
+
+    monkeypatch.delenv("PLANTBENCH_LLVM_TARGET", raising=False)
+    assert requested_llvm_target() == PINNED_TARGET
+    monkeypatch.setenv("PLANTBENCH_LLVM_TARGET", "host")
+    assert requested_llvm_target() is None
+    monkeypatch.setenv("PLANTBENCH_LLVM_TARGET", "x86-64-v2:+sse4.2,+popcnt:4")
+    assert requested_llvm_target() == LLVMTarget("x86-64-v2", "+sse4.2,+popcnt", 4)
+    for bad in ("haswell", "haswell:+avx2:6", "haswell:+avx2:eight"):
+        monkeypatch.setenv("PLANTBENCH_LLVM_TARGET", bad)
+        with pytest.raises(InputError, match="PLANTBENCH_LLVM_TARGET"):
+            requested_llvm_target()
