@@ -200,8 +200,11 @@ class Plan:
         return level
 
 
-def make_plan(suite: Suite, methods: list[str] | None = None) -> Plan:
-    """Expand ``suite`` (and its sweep) into jobs and cells. Unknown species or methods raise before any work."""
+def make_plan(suite: Suite, methods: list[str] | None = None, *, dataset: tuple[Path, Any] | None = None) -> Plan:
+    """Expand ``suite`` (and its sweep) into jobs and cells. Unknown species or methods raise before any work.
+
+    ``dataset`` (folder, :class:`plantbench.dataset.Manifest`, verified): each case's capture is the dataset's copy
+    (a job that copies it into the cache, keyed by the files' sha256) instead of a generated and rendered one."""
     from plantbench.backend import llvm_target_id
     from plantbench.species import load_species, species
 
@@ -224,16 +227,19 @@ def make_plan(suite: Suite, methods: list[str] | None = None) -> Plan:
             spec = load_species(case_set.species)
             species_bytes = species.get(case_set.species).read_bytes()
             for seed in case_set.seeds:
-                plant_key = plan.add(Job("plant", content_hash(
-                    ["plant", case_set.species, hashlib.sha256(species_bytes).hexdigest(), seed, case_set.scale,
-                     version_code["plant"]]), {"species": case_set.species, "seed": seed, "scale": case_set.scale},
-                    timeout_s=s.timeout_s))
-                capture = s.capture.model_dump(mode="json")
-                case_key = plan.add(Job("capture", content_hash(
-                    ["capture", plant_key, capture, s.root_seed, version_code["capture"], version_code["llvm"]]),
-                    {"plant": plant_key, "settings": capture, "seed": seed, "root_seed": s.root_seed},
-                    deps=(plant_key,), timeout_s=s.timeout_s))
                 case_id = f"{case_set.species}-{seed}" + (f"@{sweep_value}" if sweep_value is not None else "")
+                if dataset is not None:
+                    case_key = plan.add(_dataset_job(dataset, case_id, s, version_code))
+                else:
+                    plant_key = plan.add(Job("plant", content_hash(
+                        ["plant", case_set.species, hashlib.sha256(species_bytes).hexdigest(), seed, case_set.scale,
+                         version_code["plant"]]), {"species": case_set.species, "seed": seed, "scale": case_set.scale},
+                        timeout_s=s.timeout_s))
+                    capture = s.capture.model_dump(mode="json")
+                    case_key = plan.add(Job("capture", content_hash(
+                        ["capture", plant_key, capture, s.root_seed, version_code["capture"], version_code["llvm"]]),
+                        {"plant": plant_key, "settings": capture, "seed": seed, "root_seed": s.root_seed},
+                        deps=(plant_key,), timeout_s=s.timeout_s))
                 points_key = None
                 for name, method in resolved.items():
                     deps = [case_key]
@@ -254,6 +260,19 @@ def make_plan(suite: Suite, methods: list[str] | None = None) -> Plan:
                     plan.cells.append(Cell(case_id, case_set.species, spec.family, seed, name, sweep_value,
                                            recon_key, metrics_key, case_key))
     return plan
+
+
+def _dataset_job(dataset: tuple[Path, Any], case_id: str, s: Suite, version_code: dict) -> Job:
+    """The capture job of a case of a frozen dataset: copies ``cases/<case_id>/`` into the cache."""
+    from plantbench.errors import InputError
+
+    folder, manifest = dataset
+    prefix = f"cases/{case_id}/"
+    files = {rel: digest for rel, digest in manifest.files.items() if rel.startswith(prefix)}
+    if not files:
+        raise InputError(f"case {case_id} of suite {s.name} is not in the dataset", path=Path(folder) / "manifest.json")
+    return Job("capture", content_hash(["dataset", files, version_code["runner"]]),
+               {"dataset": str(Path(folder).resolve()), "case": case_id}, timeout_s=s.timeout_s)
 
 
 def _points_job(plan: Plan, s: Suite, case_key: str, seed: int, species: str, version_code: dict) -> str:

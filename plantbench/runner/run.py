@@ -100,12 +100,34 @@ def run_suite(
     scheduler: str | None = None,
     client=None,
     progress: Callable[[int, int, dict], None] | None = None,
+    dataset: str | os.PathLike | None = None,
 ) -> RunResult:
-    """Run ``suite`` into ``out/<suite>/`` with the shared cache ``out/cache``; return the results table."""
+    """Run ``suite`` into ``out/<suite>/`` with the shared cache ``out/cache``; return the results table.
+
+    ``dataset``: a frozen dataset of the suite (:mod:`plantbench.dataset`), verified file by file before any work;
+    its captures replace generating and capturing, and run.json records its manifest's sha256."""
     import pandas as pd
 
     t0 = time.perf_counter()
-    plan = make_plan(suite, methods)  # validates species and methods before any work
+    frozen = None
+    if dataset is not None:
+        from plantbench.dataset import manifest_sha256, verify_dataset
+
+        manifest = verify_dataset(dataset)
+        if manifest.suite != suite.name:
+            from plantbench.errors import InputError
+
+            raise InputError(f"the dataset holds suite {manifest.suite!r}, not {suite.name!r}",
+                             path=Path(dataset) / "manifest.json")
+        packed = manifest.suite_config
+        for part in ("capture", "cases", "root_seed"):
+            if packed.get(part) != suite.model_dump(mode="json").get(part):
+                from plantbench.errors import InputError
+
+                raise InputError(f"the suite's {part} differ from the dataset's (the captures are frozen: run the "
+                                 "suite as packed, or pack it again)", path=Path(dataset) / "manifest.json")
+        frozen = (Path(dataset), manifest)
+    plan = make_plan(suite, methods, dataset=frozen)  # validates species and methods before any work
     method_names = methods or list(suite.methods)
     out = Path(out)
     cache = out / "cache"
@@ -113,6 +135,9 @@ def run_suite(
     run_dir.mkdir(parents=True, exist_ok=True)
     meta = run_metadata(suite, method_names)
     meta["started"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    if frozen is not None:
+        meta["dataset"] = {"path": str(frozen[0].resolve()), "manifest_sha256": manifest_sha256(frozen[0]),
+                           "git_sha": frozen[1].git_sha, "llvm_target": frozen[1].llvm_target}
     records, stats = execute_plan(plan, cache, workers=workers, executor=executor, scheduler=scheduler,
                                   client=client, progress=progress)
 

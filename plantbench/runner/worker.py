@@ -58,6 +58,13 @@ def run_job(cache: Path, kind: str, key: str, folder: Path, params: dict) -> dic
             from plantbench.generate import generate_case
 
             generate_case(params["species"], params["seed"], folder, scale=params["scale"])
+        elif kind == "capture" and "dataset" in params:  # a frozen dataset's case (verified before the run)
+            import shutil
+
+            src = Path(params["dataset"]) / "cases" / params["case"]
+            for part in ("plant", "views", "scan"):
+                if (src / part).is_dir():
+                    shutil.copytree(src / part, folder / part)
         elif kind == "capture":
             from plantbench.capture import capture_case
 

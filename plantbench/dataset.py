@@ -1,0 +1,188 @@
+"""Frozen datasets: a suite's cases (ground truth and captures) packed once with a sha256 manifest, and run from.
+
+``plantbench dataset pack --suite NAME --out DIR`` writes::
+
+    DIR/manifest.json     format, suite (name and full config), plantbench version and git SHA, code hashes of the
+                          generator and the capture, Dr.Jit target, Mitsuba variant, licence, and per case its id,
+                          species, family, seed and files; per file its sha256 and size
+    DIR/DATASHEET.md      what is in it and how it was made
+    DIR/cases/<case>/     plant/, views/, scan/ as in a case folder (DESIGN.md section 3)
+
+``plantbench run --suite NAME --dataset DIR`` verifies every file against the manifest first (a missing, altered or
+unlisted file is an :class:`InputError` naming it) and runs the methods on the frozen captures instead of generating
+and capturing again; run.json records the manifest's sha256. Nothing is half-written: the pack is assembled in a
+temporary folder beside ``DIR`` and renamed into place.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+from pydantic import Field
+
+from plantbench.errors import InputError
+from plantbench.io.atomic import atomic_write, write_json
+from plantbench.schemas import Strict, load_json
+
+__all__ = ["DatasetCase", "Manifest", "pack_suite", "verify_dataset", "file_sha256", "manifest_sha256",
+           "DATASET_FORMAT", "LICENCE"]
+
+DATASET_FORMAT = "plantbench.dataset/1"
+LICENCE = "CC-BY-4.0"
+CASE_PARTS = ("plant", "views", "scan")
+
+
+class DatasetCase(Strict):
+    id: str = Field(description="case id as in results tables: species-seed")
+    species: str
+    family: str
+    seed: int
+    capture_key: str = Field(description="the capture job's cache key when it was packed (provenance)")
+
+
+class Manifest(Strict):
+    format: str = DATASET_FORMAT
+    suite: str
+    suite_config: dict = Field(description="the suite as packed (model_dump of plantbench.suites.Suite)")
+    plantbench_version: str
+    git_sha: str | None
+    code: dict[str, str] = Field(description="code hashes of the stages that made the data: generator, capture")
+    llvm_target: str
+    mitsuba_variant: str
+    created: str
+    licence: str = LICENCE
+    cases: list[DatasetCase]
+    files: dict[str, str] = Field(description="path relative to the dataset folder -> sha256 hex digest")
+    bytes: int = Field(ge=0, description="total size of the files")
+
+
+def file_sha256(path: Path, chunk: int = 1 << 20) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while block := fh.read(chunk):
+            h.update(block)
+    return h.hexdigest()
+
+
+def manifest_sha256(folder: str | os.PathLike) -> str:
+    """sha256 of a dataset's manifest.json bytes: the identity of the dataset recorded with every table made from it."""
+    return file_sha256(Path(folder) / "manifest.json")
+
+
+def _case_files(folder: Path) -> list[Path]:
+    return sorted(p for p in (folder / "cases").rglob("*") if p.is_file() or p.is_symlink())
+
+
+def verify_dataset(folder: str | os.PathLike) -> Manifest:
+    """The dataset's manifest, after checking every file: present, unchanged (sha256) and listed.
+
+    Raises :class:`InputError` naming the first file that is missing, altered or not in the manifest."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError("no such dataset folder", path=folder)
+    manifest = load_json(folder / "manifest.json", Manifest)
+    if manifest.format != DATASET_FORMAT:
+        raise InputError(f"format {manifest.format!r} is not {DATASET_FORMAT!r}", path=folder / "manifest.json")
+    for rel, digest in sorted(manifest.files.items()):
+        path = folder / rel
+        if not path.is_file():
+            raise InputError("missing: listed in manifest.json, not in the dataset", path=path)
+        if file_sha256(path) != digest:
+            raise InputError("corrupted: its sha256 differs from manifest.json", path=path)
+    listed = set(manifest.files)
+    for path in _case_files(folder):
+        if path.is_symlink() or str(path.relative_to(folder)) not in listed:
+            raise InputError("not in manifest.json (added after packing?)", path=path)
+    return manifest
+
+
+def _datasheet(manifest: Manifest) -> str:
+    cfg = manifest.suite_config
+    cap = cfg.get("capture", {})
+    species = sorted({c.species for c in manifest.cases})
+    return f"""# Datasheet: plantbench suite `{manifest.suite}`
+
+**What it is.** {len(manifest.cases)} synthetic plants ({", ".join(species)}) with exact ground truth and their
+captures, as the plantbench suite `{manifest.suite}` defines them: {cfg.get("description", "")}.
+
+**Per case** (`cases/<species>-<seed>/`, layout of DESIGN.md section 3): `plant/` the ground truth (skeleton with
+radii, branch and leaf meshes, per-leaf parameters); `views/` {cap.get("views")} rendered views at
+{cap.get("width")}x{cap.get("height")} px ({cap.get("spp")} spp, Mitsuba 3 `{manifest.mitsuba_variant}`) with exact
+z-depth and instance maps (ground truth), cameras as OpenCV, COLMAP and transforms.json; `scan/` a simulated
+terrestrial laser scan ({cap.get("stations")} station(s)) whose labels are ground truth.
+
+**How it was made.** `plantbench dataset pack --suite {manifest.suite}` with plantbench {manifest.plantbench_version}
+(git {manifest.git_sha}), generator code {manifest.code.get("generate")}, capture code {manifest.code.get("capture")},
+Dr.Jit code generation `{manifest.llvm_target}`, on {manifest.created}. Every random draw is seeded from the suite's
+root seed ({cfg.get("root_seed")}) and the case; the same code and target give the same bytes.
+
+**Use.** `plantbench run --suite {manifest.suite} --dataset <this folder>` checks every file against `manifest.json`
+(sha256) and runs the methods on these captures; the results record the manifest's sha256. A method may read only
+what a real capture gives (images with cameras, the scan's coordinates); `plant/`, the exact depth and instance
+maps and the scan's labels are for scoring.
+
+**Licence.** {manifest.licence}. The plants are procedural (no third-party models or textures).
+
+**Known limits.** Synthetic plants and renders: no wind, no real sensor model beyond the path tracer's noise and the
+scan's range noise and dropout.
+"""
+
+
+def pack_suite(suite, out: str | os.PathLike, *, cache: str | os.PathLike = "runs/cache", workers: int = 1,
+               force: bool = False, progress=None) -> Manifest:
+    """Generate and capture every case of ``suite`` (through the run cache: finished cases are reused) and write
+    the dataset folder ``out``; returns its manifest. ``out`` must not exist unless ``force``."""
+    from plantbench import __version__
+    from plantbench.backend import llvm_target_id, select_variant
+    from plantbench.runner.execute import execute_plan
+    from plantbench.runner.plan import Plan, code_hash, make_plan
+    from plantbench.runner.run import _git_sha
+    from plantbench.runner.worker import job_folder
+
+    out, cache = Path(out), Path(cache)
+    if out.exists() and not force:
+        raise InputError("already exists (pass --force to replace it)", path=out)
+    full = make_plan(suite, ["gt"])
+    plan = Plan(suite, {k: j for k, j in full.jobs.items() if j.kind in ("plant", "capture")})
+    records, _ = execute_plan(plan, cache, workers=workers, progress=progress)
+    failed = [k for k, r in records.items() if r["status"] != "ok"]
+    if failed:
+        raise InputError(f"{len(failed)} plant/capture job(s) failed: {records[failed[0]].get('error')}",
+                         path=job_folder(cache, plan.jobs[failed[0]].kind, failed[0]))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    try:
+        cases, seen = [], set()
+        for cell in full.cells:
+            if cell.case in seen:
+                continue
+            seen.add(cell.case)
+            src = job_folder(cache, "capture", cell.case_key)
+            for part in CASE_PARTS:
+                if (src / part).exists():
+                    shutil.copytree(src / part, tmp / "cases" / cell.case / part, symlinks=False)
+            cases.append(DatasetCase(id=cell.case, species=cell.species, family=cell.family, seed=cell.seed,
+                                     capture_key=cell.case_key))
+        files = {str(p.relative_to(tmp)): file_sha256(p) for p in _case_files(tmp)}
+        manifest = Manifest(
+            suite=suite.name, suite_config=suite.model_dump(mode="json"), plantbench_version=__version__,
+            git_sha=_git_sha(), code={"generate": code_hash("plantbench/generate"),
+                                      "capture": code_hash("plantbench/capture")},
+            llvm_target=llvm_target_id(), mitsuba_variant=select_variant(),
+            created=time.strftime("%Y-%m-%dT%H:%M:%S%z"), cases=cases, files=files,
+            bytes=sum((tmp / f).stat().st_size for f in files))
+        write_json(tmp / "manifest.json", manifest.model_dump(mode="json"))
+        with atomic_write(tmp / "DATASHEET.md", "w") as fh:
+            fh.write(_datasheet(manifest))
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return manifest
