@@ -7,7 +7,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 export DRJIT_LIBLLVM_PATH ?= /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
 
-.PHONY: setup sysdeps run test bench lint clean baseline
+.PHONY: setup sysdeps run test bench lint clean baseline variability
 
 setup: sysdeps $(STAMP)
 
@@ -38,6 +38,12 @@ bench: setup
 baseline: setup
 	$(BIN)/plantbench run --suite quick --out runs --workers 2
 	$(BIN)/plantbench gate runs/quick --baseline reports/baseline.json --write
+
+# The variability study: the quick suite under perturbations that carry no meaning (Dr.Jit target and vector width,
+# +-1 grey level of image noise, thread count); writes reports/tolerances.json, reports/baseline.json and
+# reports/variability/ (commit them).
+variability: setup
+	$(BIN)/plantbench variability --suite quick --out runs/variability --reports reports
 
 lint: setup
 	$(BIN)/ruff check .

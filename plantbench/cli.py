@@ -143,6 +143,8 @@ def run(
     executor: Annotated[str, typer.Option(help="local or dask.")] = "local",
     scheduler: Annotated[Optional[str], typer.Option(help="Dask scheduler address.")] = None,  # noqa: UP045
     out: Annotated[Path, typer.Option(help="Run folder.")] = Path("runs"),
+    dataset: Annotated[Optional[Path], typer.Option(  # noqa: UP045
+        help="A frozen dataset of the suite (`plantbench dataset pack`): run the methods on its captures.")] = None,
 ) -> None:
     """Run a suite: cases x methods, cached and resumable; writes the results table."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -165,7 +167,7 @@ def run(
 
         try:
             result = run_suite(spec, out, methods=method_list, workers=workers, executor=executor,
-                               scheduler=scheduler, progress=progress)
+                               scheduler=scheduler, progress=progress, dataset=dataset)
         except KeyboardInterrupt:
             console.print("interrupted: finished jobs are cached; run the same command again to resume")
             raise typer.Exit(130) from None
@@ -196,35 +198,156 @@ def report(
 @app.command()
 def gate(
     run_dir: Annotated[Path, typer.Argument(metavar="RUN", help="A run folder (holding results.parquet).")],
-    baseline: Annotated[Path, typer.Option(help="Baseline JSON with tolerances.")] = Path("reports/baseline.json"),
+    baseline: Annotated[Path, typer.Option(help="Baseline JSON (headline metric values per method and case).")] = Path(
+        "reports/baseline.json"),
+    tolerances: Annotated[Optional[Path], typer.Option(  # noqa: UP045
+        help="Tolerances JSON from the variability study [default: tolerances.json beside the baseline].")] = None,
     write: Annotated[bool, typer.Option("--write", help="Write the baseline from this run instead of comparing.")] = False,
-    rel_tol: Annotated[float, typer.Option(help="With --write: relative tolerance per metric.")] = 0.05,
 ) -> None:
-    """Compare a run with a baseline; exit 1 naming every metric that regressed beyond its tolerance."""
+    """Compare a run's headline metrics, per method and case, with a baseline; exit 1 naming every metric that moved
+    in its bad direction beyond its tolerance (from the variability study: `plantbench variability`)."""
     from rich.table import Table
 
-    from plantbench.report.gate import compare, load_baseline, make_baseline, read_results, write_baseline
+    from plantbench.report.gate import (
+        compare,
+        load_baseline,
+        load_tolerances,
+        make_baseline,
+        read_results,
+        tolerances_path,
+        write_baseline,
+    )
 
     table = read_results(run_dir)
     if write:
-        suite = run_dir.name
-        b = make_baseline(table, suite, rel_tol=rel_tol)
+        meta = _run_meta(run_dir)
+        b = make_baseline(table, meta.get("suite", run_dir.name), llvm_target=meta.get("llvm_target"),
+                          git_sha=meta.get("git_sha"))
         write_baseline(baseline, b)
-        typer.echo(f"{baseline}: {len(b.entries)} metric baselines from {run_dir}")
+        typer.echo(f"{baseline}: {len(b.entries)} headline values (method x case x metric) from {run_dir}")
         return
-    result = compare(table, load_baseline(baseline))
+    tol_file = tolerances or tolerances_path(baseline)
+    tol = load_tolerances(tol_file) if tolerances is not None or tol_file.exists() else None
+    result = compare(table, load_baseline(baseline), tol)
     bad = result[result["regressed"]]
     console = _console()
+    floor_only = int((result["source"] == "floor").sum())
+    note = f" ({floor_only} with the floor tolerance only: not in {tol_file})" if floor_only else ""
     if bad.empty:
-        console.print(f"gate passed: {len(result)} metrics within tolerance of {baseline}")
+        console.print(f"gate passed: {len(result)} headline metrics within tolerance of {baseline}{note}")
         return
-    out = Table("method", "metric", "baseline", "now", "tolerance", "direction", title="regressions")
+    out = Table("method", "case", "metric", "baseline", "now", "change", "tolerance", "better", title="regressions")
     for r in bad.itertuples():
-        out.add_row(r.method, r.metric, f"{r.baseline:.4g}", "missing" if r.value != r.value else f"{r.value:.4g}",
-                    f"{r.tolerance:.3g}", "higher is better" if r.higher_is_better else "lower is better")
+        missing = r.value != r.value
+        out.add_row(r.method, r.case, r.metric, f"{r.baseline:.4g}", "missing" if missing else f"{r.value:.4g}",
+                    "" if missing else f"{r.delta:+.3g}", f"{r.tolerance:.3g}" + (" (floor)" if r.source == "floor" else ""),
+                    "higher" if r.higher_is_better else "lower")
     console.print(out)
-    console.print(f"gate failed: {len(bad)} of {len(result)} metrics regressed")
+    console.print(f"gate failed: {len(bad)} of {len(result)} headline metrics regressed{note}")
     raise typer.Exit(1)
+
+
+def _run_meta(run_dir: Path) -> dict:
+    import json
+
+    try:
+        return json.loads((run_dir / "run.json").read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+@app.command()
+def variability(
+    suite: Annotated[str, typer.Option(help="Suite name or path to a suite TOML.")] = "quick",
+    out: Annotated[Path, typer.Option(help="Folder of the study's runs (one run folder and cache per run).")] = Path(
+        "runs/variability"),
+    reports: Annotated[Path, typer.Option(help="Where baseline.json, tolerances.json and variability/ are written.")]
+    = Path("reports"),
+    only: Annotated[Optional[str], typer.Option(  # noqa: UP045
+        help="Comma-separated perturbations to run besides the reference (default: all this CPU can run).")] = None,
+) -> None:
+    """Run a suite under perturbations that carry no meaning (Dr.Jit target and vector width, +-1 grey level of
+    image noise, thread count), then write the gate's baseline (the reference run) and its tolerances."""
+    import time
+
+    from plantbench.io.atomic import atomic_write
+    from plantbench.report.gate import make_baseline, write_baseline, write_tolerances
+    from plantbench.report.variability import (
+        PERTURBATIONS,
+        available_perturbations,
+        run_study,
+        study_markdown,
+        study_table,
+        tolerances_from_study,
+    )
+    from plantbench.suites import load_suite
+
+    spec = load_suite(suite)
+    chosen = available_perturbations([n.strip() for n in only.split(",")] if only else None)
+    console = _console()
+    skipped = [p for p in PERTURBATIONS if p not in chosen and (not only or p.name in only)]
+    for p in skipped:
+        console.print(f"skipped {p.name}: this CPU lacks {p.requires}")
+    t0 = time.perf_counter()
+    tables = run_study(spec, out, perturbations=chosen,
+                       on_run=lambda p: console.print(f"[bold]{p.name}[/bold]: {p.description}"))
+    study = study_table(tables)
+    tol = tolerances_from_study(study, spec.name)
+    folder = reports / "variability"
+    folder.mkdir(parents=True, exist_ok=True)
+    with atomic_write(folder / "study.csv", "w") as fh:
+        study.to_csv(fh, index=False)
+    meta = _run_meta(out / "reference" / spec.name)
+    from plantbench.backend import _host_cpu_name
+
+    header = (f"Made by `plantbench variability --suite {spec.name}` on {_host_cpu_name()} "
+              f"(code {meta.get('git_sha')}, {time.perf_counter() - t0:.0f} s for {len(chosen)} runs). "
+              "study.csv holds every run's headline values; ../tolerances.json the tolerances; ../baseline.json "
+              "the reference run's values.")
+    with atomic_write(folder / "README.md", "w") as fh:
+        fh.write(study_markdown(study, tol, chosen, header=header))
+    write_tolerances(reports / "tolerances.json", tol)
+    write_baseline(reports / "baseline.json", make_baseline(tables["reference"], spec.name,
+                                                            llvm_target=meta.get("llvm_target"),
+                                                            git_sha=meta.get("git_sha")))
+    console.print(f"{folder}/README.md, {reports}/tolerances.json ({len(tol.entries)} cells), "
+                  f"{reports}/baseline.json: {len(chosen)} runs in {time.perf_counter() - t0:.0f} s")
+
+
+dataset_app = typer.Typer(help="Frozen datasets: a suite's ground truth and captures with a sha256 manifest.",
+                          no_args_is_help=True)
+app.add_typer(dataset_app, name="dataset")
+
+
+@dataset_app.command("pack")
+def dataset_pack(
+    suite: Annotated[str, typer.Option(help="Suite name (see `plantbench suites`) or path to a suite TOML.")],
+    out: Annotated[Path, typer.Option(help="Dataset folder to write (must not exist).")],
+    cache: Annotated[Path, typer.Option(help="Job cache to generate and capture through.")] = Path("runs/cache"),
+    workers: Annotated[int, typer.Option(help="Parallel workers.")] = 1,
+    force: Annotated[bool, typer.Option("--force", help="Replace OUT if it exists.")] = False,
+) -> None:
+    """Generate and capture every case of a suite and write them with a manifest (sha256 of every file, versions,
+    code hashes, licence) and a datasheet."""
+    from plantbench.dataset import manifest_sha256, pack_suite
+    from plantbench.suites import load_suite
+
+    spec = load_suite(suite)
+    manifest = pack_suite(spec, out, cache=cache, workers=workers, force=force)
+    typer.echo(f"{out}: {len(manifest.cases)} cases, {len(manifest.files)} files, {manifest.bytes / 2**20:.1f} MiB; "
+               f"manifest sha256 {manifest_sha256(out)}")
+
+
+@dataset_app.command("verify")
+def dataset_verify(
+    folder: Annotated[Path, typer.Argument(metavar="DIR", help="A dataset folder.")],
+) -> None:
+    """Check every file of a dataset against its manifest; exit 2 naming the first missing, altered or unlisted one."""
+    from plantbench.dataset import manifest_sha256, verify_dataset
+
+    manifest = verify_dataset(folder)
+    typer.echo(f"{folder}: {len(manifest.files)} files verified (suite {manifest.suite}, {len(manifest.cases)} cases); "
+               f"manifest sha256 {manifest_sha256(folder)}")
 
 
 # ------------------------------------------------------------------------------------------------------ listings

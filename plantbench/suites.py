@@ -34,6 +34,7 @@ class CaptureSettings(Strict):
     image_noise: int = Field(default=0, ge=0, le=16,
                              description="grey levels of uniform integer noise added to each image channel (0: none; "
                                          "the variability study uses 1)")
+    image_noise_seed: int = Field(default=0, ge=0, description="which draw of the image noise (the study repeats it)")
 
     @model_validator(mode="after")
     def _elevation_order(self):

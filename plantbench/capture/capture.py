@@ -223,7 +223,8 @@ def _write_views(folder: Path, plant: Plant, cameras: list[Camera], scene, gt, c
         rgb = to_srgb8(render_colour(scene, i, spp=options.spp, seed=derive_seed(seed, "capture", "render", i) % 2**32,
                                      mi=mi))
         if options.image_noise:
-            rgb = add_grey_noise(rgb, options.image_noise, rng(seed, "capture", "image_noise", i))
+            noise_rng = rng(seed, "capture", "image_noise", options.image_noise_seed, i)
+            rgb = add_grey_noise(rgb, options.image_noise, noise_rng)
         _save_png(folder / "images" / names[i], rgb)
         t1 = time.perf_counter()
         maps = exact_maps(cam, gt, caster, normals=options.normals)

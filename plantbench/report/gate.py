@@ -1,9 +1,13 @@
-"""``plantbench gate``: compare a run's per-method metric means with a committed baseline.
+"""``plantbench gate``: compare a run's headline metrics, per method and case, with a committed baseline.
 
-The baseline (``reports/baseline.json``) lists, per (method, metric), the reference mean, an absolute tolerance and
-the metric's direction. A metric regresses when it moves in its bad direction by more than its tolerance, or when
-a cell that had a value in the baseline now has none (a method that newly fails). Improvements never fail the
-gate. Running times are not gated (they measure the machine, not the method).
+The baseline (``reports/baseline.json``) holds the reference value of every headline metric (:data:`HEADLINE`) of
+every (method, case) cell of a suite, and of each method's mean over the cases (case :data:`MEAN`), with the
+metric's direction. The tolerances (``reports/tolerances.json``,
+beside it) come from the variability study (:mod:`plantbench.report.variability`): the suite run again under
+perturbations that carry no meaning, one tolerance per cell and metric, max(3 x spread, largest change seen, floor).
+A metric regresses when it moves in its bad direction by more than its tolerance, or when a cell that had a value
+in the baseline now has none (a method that newly fails). Improvements never fail the gate. Running times and the
+other raw columns are not gated: they stay in the results table for reproduction.
 """
 
 from __future__ import annotations
@@ -16,25 +20,65 @@ from pydantic import Field
 
 from plantbench.errors import InputError
 from plantbench.io.atomic import write_json
+from plantbench.report.tables import KEY_METRICS
 from plantbench.schemas import Strict, load_json
 
-__all__ = ["BaselineEntry", "Baseline", "read_results", "compare", "make_baseline", "write_baseline"]
+__all__ = ["HEADLINE", "FLOORS", "MEAN", "BaselineEntry", "Baseline", "ToleranceEntry", "Tolerances", "read_results",
+           "cell_values", "compare", "make_baseline", "write_baseline", "load_baseline", "load_tolerances",
+           "write_tolerances", "tolerances_path"]
 
-UNGATED = ("runtime_s",)
+HEADLINE = tuple(m for m in KEY_METRICS if m != "runtime_s")
+"""The gated metrics: the report's key metrics (:data:`plantbench.report.tables.KEY_METRICS`) less running time."""
+
+FLOORS = {
+    "stava.S_T": 0.005,
+    "mesh_to_surface.D_cm": 0.05,
+    "mesh_to_surface.sigma_cm": 0.05,
+    "mesh_to_scan.D_cm": 0.05,
+    "reprojection.error": 0.005,
+    "reprojection.iou": 0.005,
+    "leaves.accuracy": 0.01,
+    "skeleton.f1@1.0": 0.005,
+    "points.all.fscore@1%": 0.005,
+}
+"""Smallest tolerance per headline metric, in its unit: a change below it is never a regression, even in a cell the
+study saw perfectly stable (the ground truth's own rows, a deterministic method)."""
 
 
 class BaselineEntry(Strict):
     method: str
+    case: str
     metric: str
-    value: float = Field(description="reference mean over the suite's cases")
-    tolerance: float = Field(ge=0, description="allowed move in the bad direction, in the metric's unit")
+    value: float = Field(description="the metric's value in this cell of the reference run")
     higher_is_better: bool
 
 
 class Baseline(Strict):
-    format: str = "plantbench.baseline/1"
+    format: str = "plantbench.baseline/2"
     suite: str
+    llvm_target: str | None = Field(default=None, description="Dr.Jit code generation of the reference run")
+    git_sha: str | None = None
     entries: list[BaselineEntry]
+
+
+class ToleranceEntry(Strict):
+    method: str
+    case: str
+    metric: str
+    tolerance: float = Field(ge=0, description="allowed move in the bad direction, in the metric's unit")
+    sd: float = Field(ge=0, description="standard deviation of the value over the study's runs")
+    max_change: float = Field(ge=0, description="largest |change| from the reference run seen in the study")
+    runs: int = Field(ge=0, description="runs of the study with a value in this cell")
+    bound: str = Field(description="which term set the tolerance: 'spread' (3 x sd), 'max_change' or 'floor'")
+
+
+class Tolerances(Strict):
+    format: str = "plantbench.tolerances/1"
+    suite: str
+    rule: str = "max(3 x sd, max |change from the reference run|, floor)"
+    perturbations: list[str] = Field(description="the study's runs, the reference first")
+    floors: dict[str, float]
+    entries: list[ToleranceEntry]
 
 
 def read_results(run_dir: str | os.PathLike):
@@ -49,7 +93,7 @@ def read_results(run_dir: str | os.PathLike):
                 table = reader(path)
             except Exception as exc:  # noqa: BLE001 - corrupt file
                 raise InputError(f"unreadable results table ({exc})", path=path) from None
-            missing = {"method", "metric", "value", "status"} - set(table.columns)
+            missing = {"case", "method", "metric", "value", "status"} - set(table.columns)
             if missing:
                 raise InputError(f"missing columns {sorted(missing)}", path=path)
             return table
@@ -66,46 +110,70 @@ def _direction(metric: str) -> bool | None:
     return info.higher_is_better
 
 
-def compare(table, baseline: Baseline):
-    """One row per baseline entry: method, metric, baseline, value, tolerance, delta, regressed."""
+MEAN = "mean"
+"""The case name of a method's mean over the suite's cases (the number a paper table shows), gated beside the cases."""
+
+
+def cell_values(table, metrics: tuple[str, ...] = HEADLINE) -> dict[tuple[str, str, str], float]:
+    """(method, case, metric) -> value of each headline metric in ``table``, NaN where the cell failed; and
+    (method, :data:`MEAN`, metric) -> the mean over the method's cases (NaN when one of them failed)."""
+    rows = table[table["metric"].isin(metrics)]
+    out = {}
+    for r in rows.itertuples():
+        v = float(r.value) if r.status == "ok" and r.value is not None else float("nan")
+        out[(r.method, r.case, r.metric)] = v
+    per_method: dict[tuple[str, str], list[float]] = {}
+    for (method, _, metric), v in out.items():
+        per_method.setdefault((method, metric), []).append(v)
+    for (method, metric), values in per_method.items():
+        out[(method, MEAN, metric)] = float(sum(values) / len(values))
+    return out
+
+
+def tolerances_path(baseline: str | os.PathLike) -> Path:
+    """Where the tolerances of ``baseline`` live: tolerances.json beside it."""
+    return Path(baseline).with_name("tolerances.json")
+
+
+def compare(table, baseline: Baseline, tolerances: Tolerances | None = None):
+    """One row per baseline entry: method, case, metric, baseline, value, delta, tolerance, source, regressed.
+
+    ``source`` says where the tolerance came from: 'study' (``tolerances``) or 'floor' (a cell the study did not
+    cover: :data:`FLOORS`)."""
     import pandas as pd
 
-    from plantbench.report.tables import aggregate
-
-    agg = aggregate(table, n_boot=1).set_index(["method", "metric"])
+    now = cell_values(table, tuple({e.metric for e in baseline.entries}))
+    tol = {(t.method, t.case, t.metric): t.tolerance for t in (tolerances.entries if tolerances else [])}
+    floors = tolerances.floors if tolerances else FLOORS
     rows = []
     for e in baseline.entries:
-        value = float(agg.loc[(e.method, e.metric), "mean"]) if (e.method, e.metric) in agg.index else float("nan")
+        key = (e.method, e.case, e.metric)
+        value = now.get(key, float("nan"))
+        tolerance, source = (tol[key], "study") if key in tol else (floors.get(e.metric, FLOORS.get(e.metric, 0.0)),
+                                                                    "floor")
         if math.isnan(value):
-            regressed, delta = True, float("nan")
+            regressed, delta = not math.isnan(e.value), float("nan")
         else:
             delta = value - e.value
             bad_move = -delta if e.higher_is_better else delta
-            regressed = bad_move > e.tolerance
-        rows.append({"method": e.method, "metric": e.metric, "baseline": e.value, "value": value,
-                     "tolerance": e.tolerance, "delta": delta, "higher_is_better": e.higher_is_better,
-                     "regressed": regressed})
-    return pd.DataFrame(rows)
+            regressed = bad_move > tolerance
+        rows.append({"method": e.method, "case": e.case, "metric": e.metric, "baseline": e.value, "value": value,
+                     "delta": delta, "tolerance": tolerance, "source": source,
+                     "higher_is_better": e.higher_is_better, "regressed": bool(regressed)})
+    return pd.DataFrame(rows, columns=["method", "case", "metric", "baseline", "value", "delta", "tolerance", "source",
+                                       "higher_is_better", "regressed"])
 
 
-def make_baseline(table, suite: str, *, rel_tol: float = 0.05, abs_tol: float = 1e-3) -> Baseline:
-    """A baseline from a run: every (method, metric) mean with tolerance max(abs_tol, rel_tol * |mean|).
-
-    Descriptive values without a direction (counts, heights) and running times are not gated.
-    """
-    from plantbench.report.tables import aggregate
-
-    agg = aggregate(table, n_boot=1)
+def make_baseline(table, suite: str, *, llvm_target: str | None = None, git_sha: str | None = None) -> Baseline:
+    """A baseline from a run: the value of every headline metric in every (method, case) cell that has one."""
     entries = []
-    for r in agg.itertuples():
-        if r.metric in UNGATED or not math.isfinite(r.mean):
+    for (method, case, metric), value in sorted(cell_values(table).items()):
+        direction = _direction(metric)
+        if direction is None or not math.isfinite(value):
             continue
-        direction = _direction(r.metric)
-        if direction is None:
-            continue
-        entries.append(BaselineEntry(method=r.method, metric=r.metric, value=r.mean,
-                                     tolerance=max(abs_tol, rel_tol * abs(r.mean)), higher_is_better=direction))
-    return Baseline(suite=suite, entries=entries)
+        entries.append(BaselineEntry(method=method, case=case, metric=metric, value=value,
+                                     higher_is_better=direction))
+    return Baseline(suite=suite, llvm_target=llvm_target, git_sha=git_sha, entries=entries)
 
 
 def write_baseline(path: str | os.PathLike, baseline: Baseline) -> None:
@@ -114,3 +182,11 @@ def write_baseline(path: str | os.PathLike, baseline: Baseline) -> None:
 
 def load_baseline(path: str | os.PathLike) -> Baseline:
     return load_json(path, Baseline)
+
+
+def write_tolerances(path: str | os.PathLike, tolerances: Tolerances) -> None:
+    write_json(path, tolerances.model_dump(mode="json"))
+
+
+def load_tolerances(path: str | os.PathLike) -> Tolerances:
+    return load_json(path, Tolerances)

@@ -93,6 +93,9 @@ def test_gate_cli_names_the_regressed_metric(tmp_path):
                           text=True, env={"COLUMNS": "200", "PATH": "/usr/bin:/bin"})
     assert fail.returncode == 1
     assert "mesh_to_scan.D_cm" in fail.stdout and "stava.S_T" not in fail.stdout
+    # every livny cell regressed (the shift is the same in each) and livny's mean over them, none of gt's
+    assert "7 of 28 headline metrics regressed" in fail.stdout and "maple-2" in fail.stdout
+    assert "mean" in fail.stdout
 
 
 def test_baseline_file_is_validated(tmp_path):
@@ -100,7 +103,7 @@ def test_baseline_file_is_validated(tmp_path):
     from plantbench.report.gate import load_baseline
 
     (tmp_path / "b.json").write_text('{"suite": "x", "entries": [{"method": "gt"}]}')
-    with pytest.raises(InputError, match="b.json: entries.0.metric: Field required"):
+    with pytest.raises(InputError, match="b.json: entries.0.case: Field required"):
         load_baseline(tmp_path / "b.json")
     assert Baseline(suite="x", entries=[]).entries == []
 

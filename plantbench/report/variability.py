@@ -1,0 +1,199 @@
+"""The variability study: a suite run again under perturbations that carry no meaning, and the gate's tolerances.
+
+A perturbation changes nothing a reconstruction should depend on: Dr.Jit's code generation (vector width, the
+instruction set of another CPU), +-1 grey level of noise on the images, the number of threads of each job. How far
+each headline metric of each (method, case) cell moves under them is the noise floor of that number; the gate's
+tolerance is max(3 x sd, largest change seen, floor) (:func:`tolerances_from_study`), so that the gate passes every
+run of the study and flags what moves beyond its noise.
+
+Each perturbation runs in its own run folder with its own job cache (the thread count is not part of a job's key).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from plantbench.report.gate import FLOORS, HEADLINE, ToleranceEntry, Tolerances, cell_values
+
+__all__ = ["Perturbation", "PERTURBATIONS", "available_perturbations", "study_table", "tolerances_from_study",
+           "run_study", "STUDY_COLUMNS"]
+
+STUDY_COLUMNS = ["perturbation", "method", "case", "metric", "value"]
+
+_AVX2 = "haswell:+avx,+avx2,+fma,+f16c,+bmi,+bmi2,+lzcnt,+popcnt,+sse4.2,+sse4.1,+ssse3,+sse3"
+_AVX512 = ("skylake-avx512:+avx512f,+avx512dq,+avx512vl,+avx512bw,+avx512cd,+avx,+avx2,+fma,+f16c,+bmi,+bmi2,+lzcnt,"
+           "+popcnt,+sse4.2,+sse4.1,+ssse3,+sse3")
+
+
+@dataclass(frozen=True)
+class Perturbation:
+    """One run of the study.
+
+    name : folder name and label
+    description : what it changes, for the study's report
+    env : environment variables of the run (and so of its job processes)
+    capture : overrides of the suite's ``[capture]`` table
+    workers : parallel jobs (with 2 cores: 2 workers give each job 1 thread, 1 worker gives it 2)
+    requires : CPU features (LLVM names) the perturbation needs; skipped on a CPU without them
+    """
+
+    name: str
+    description: str
+    env: dict[str, str] = field(default_factory=dict)
+    capture: dict[str, int] = field(default_factory=dict)
+    workers: int = 2
+    requires: str = ""
+
+
+PERTURBATIONS = (
+    Perturbation("reference", "the defaults: Dr.Jit pinned to AVX2 at width 8, 2 workers (1 thread per job)"),
+    Perturbation("avx2-width4", "Dr.Jit kernels at vector width 4 (AVX2)",
+                 env={"PLANTBENCH_LLVM_TARGET": f"{_AVX2}:4"}),
+    Perturbation("avx512-width16", "Dr.Jit kernels for AVX-512 at width 16 (what an AVX-512 host picks unpinned)",
+                 env={"PLANTBENCH_LLVM_TARGET": f"{_AVX512}:16"}, requires="+avx512f,+avx512dq,+avx512vl,+avx512bw"),
+    Perturbation("noise1-a", "+-1 grey level of uniform noise on every image channel (draw 1)",
+                 capture={"image_noise": 1, "image_noise_seed": 1}),
+    Perturbation("noise1-b", "+-1 grey level of uniform noise on every image channel (draw 2)",
+                 capture={"image_noise": 1, "image_noise_seed": 2}),
+    Perturbation("noise1-c", "+-1 grey level of uniform noise on every image channel (draw 3)",
+                 capture={"image_noise": 1, "image_noise_seed": 3}),
+    Perturbation("threads2", "1 worker: each job's thread pools (Dr.Jit, BLAS, cKDTree, Open3D) use both cores",
+                 workers=1),
+)
+"""The study's runs, the reference first."""
+
+
+def available_perturbations(names: list[str] | None = None) -> list[Perturbation]:
+    """The perturbations this CPU can run (named ones only, when ``names``); the reference always first."""
+    from plantbench.backend import _host_has
+    from plantbench.errors import InputError
+
+    known = {p.name: p for p in PERTURBATIONS}
+    if names:
+        unknown = sorted(set(names) - set(known))
+        if unknown:
+            raise InputError(f"unknown perturbation(s) {unknown}; known: {sorted(known)}")
+    chosen = [p for p in PERTURBATIONS if names is None or p.name in names or p.name == "reference"]
+    return [p for p in chosen if not p.requires or _host_has(p.requires)]
+
+
+@contextlib.contextmanager
+def _environment(env: dict[str, str]) -> Iterator[None]:
+    old = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def study_table(tables: dict[str, object]):
+    """Long table (perturbation, method, case, metric, value) of the headline metrics of each run's results."""
+    import pandas as pd
+
+    rows = [{"perturbation": name, "method": m, "case": c, "metric": k, "value": v}
+            for name, table in tables.items() for (m, c, k), v in sorted(cell_values(table).items())]
+    return pd.DataFrame(rows, columns=STUDY_COLUMNS)
+
+
+def tolerances_from_study(study, suite: str, *, reference: str = "reference",
+                          floors: dict[str, float] | None = None) -> Tolerances:
+    """Per (method, case, metric) of the reference run: tolerance = max(3 x sd, max |change|, floor).
+
+    sd is the sample standard deviation (ddof 1) of the cell's finite values over all runs, the reference included;
+    max |change| the largest distance of a run's value from the reference's. A cell whose value is missing in the
+    reference run gets no entry (the gate does not gate it)."""
+    floors = dict(FLOORS if floors is None else floors)
+    perturbations = [reference] + sorted(set(study["perturbation"]) - {reference})
+    entries = []
+    for (method, case, metric), grp in study.groupby(["method", "case", "metric"], sort=True):
+        ref = grp.loc[grp["perturbation"] == reference, "value"]
+        if ref.empty or not math.isfinite(float(ref.iloc[0])):
+            continue
+        ref_value = float(ref.iloc[0])
+        values = grp["value"].to_numpy(float)
+        values = values[np.isfinite(values)]
+        sd = float(np.std(values, ddof=1)) if values.size > 1 else 0.0
+        max_change = float(np.max(np.abs(values - ref_value)))
+        floor = floors.get(metric, 0.0)
+        terms = {"spread": 3.0 * sd, "max_change": max_change, "floor": floor}
+        bound = max(terms, key=terms.get)
+        entries.append(ToleranceEntry(method=method, case=case, metric=metric, tolerance=terms[bound], sd=sd,
+                                      max_change=max_change, runs=int(values.size), bound=bound))
+    return Tolerances(suite=suite, perturbations=perturbations, floors={m: floors[m] for m in HEADLINE if m in floors},
+                      entries=entries)
+
+
+def run_study(suite, out: Path, *, perturbations: list[Perturbation] | None = None,
+              on_run: Callable[[Perturbation], None] | None = None,
+              progress: Callable[[int, int, dict], None] | None = None) -> dict[str, object]:
+    """Run ``suite`` under each perturbation into ``out/<name>/`` (own cache each); return name -> results table."""
+    from plantbench.runner import run_suite
+    from plantbench.suites import apply_override
+
+    tables = {}
+    for p in perturbations or available_perturbations():
+        if on_run is not None:
+            on_run(p)
+        s = suite
+        for key, value in p.capture.items():
+            s = apply_override(s, f"capture.{key}", value)
+        with _environment(p.env):
+            result = run_suite(s, Path(out) / p.name, workers=p.workers, progress=progress)
+        tables[p.name] = result.table
+    return tables
+
+
+def study_markdown(study, tolerances: Tolerances, perturbations: list[Perturbation], *, header: str = "") -> str:
+    """The study's report: what each run changed, how far it moved each headline metric (median and largest |change|
+    from the reference over the cells), and the tolerances that follow."""
+    import pandas as pd
+
+    ref = study[study["perturbation"] == "reference"].set_index(["method", "case", "metric"])["value"]
+    lines = [f"# Variability study: suite {tolerances.suite}", ""]
+    if header:
+        lines += [header, ""]
+    lines += ["| run | what it changes |", "|---|---|"]
+    lines += [f"| {p.name} | {p.description} |" for p in perturbations]
+    lines += ["", "## |change| from the reference run, per headline metric (median / largest over the cells)", ""]
+    names = [p.name for p in perturbations if p.name != "reference"]
+    lines += ["| metric | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+    for metric in HEADLINE:
+        cells = []
+        for name in names:
+            run = study[(study["perturbation"] == name) & (study["metric"] == metric)]
+            run = run.set_index(["method", "case", "metric"])["value"]
+            change = (run - ref.reindex(run.index)).abs().dropna()
+            cells.append("-" if change.empty else f"{change.median():.3g} / {change.max():.3g}")
+        if any(c != "-" for c in cells):
+            lines.append(f"| {metric} | " + " | ".join(cells) + " |")
+    tol = pd.DataFrame([e.model_dump() for e in tolerances.entries])
+    lines += ["", f"## Tolerances ({tolerances.rule}), per method and metric: median over cases [largest]", ""]
+    methods = sorted(tol["method"].unique()) if len(tol) else []
+    lines += ["| metric | floor | " + " | ".join(methods) + " |", "|---|---|" + "---|" * len(methods)]
+    for metric in HEADLINE:
+        t = tol[tol["metric"] == metric] if len(tol) else tol
+        if t.empty:
+            continue
+        cells = []
+        for m in methods:
+            v = t.loc[t["method"] == m, "tolerance"]
+            cells.append("-" if v.empty else f"{v.median():.3g} [{v.max():.3g}]")
+        lines.append(f"| {metric} | {tolerances.floors.get(metric, 0):g} | " + " | ".join(cells) + " |")
+    if len(tol):
+        bound = tol["bound"].value_counts()
+        lines += ["", "Cells whose tolerance is set by each term: "
+                  + ", ".join(f"{k} {int(bound.get(k, 0))}" for k in ("spread", "max_change", "floor"))
+                  + f" (of {len(tol)})."]
+    return "\n".join(lines) + "\n"
