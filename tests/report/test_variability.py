@@ -13,8 +13,15 @@ import pandas as pd
 import pytest
 
 from plantbench.paths import project_root
-from plantbench.report.gate import (FLOORS, HEADLINE, compare, load_baseline, load_tolerances, make_baseline,
-                                    tolerances_path)
+from plantbench.report.gate import (
+    FLOORS,
+    HEADLINE,
+    compare,
+    load_baseline,
+    load_tolerances,
+    make_baseline,
+    tolerances_path,
+)
 from plantbench.report.variability import PERTURBATIONS, available_perturbations, tolerances_from_study
 
 REPORTS = project_root() / "reports"
