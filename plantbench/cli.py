@@ -154,6 +154,10 @@ def run(
 
     spec = load_suite(suite)
     method_list = [m.strip() for m in methods.split(",")] if methods else None
+    if dataset is not None:  # a damaged dataset is refused before any progress is shown
+        from plantbench.dataset import verify_dataset
+
+        verify_dataset(dataset)
     console = _console()
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=console, transient=False) as bar:
