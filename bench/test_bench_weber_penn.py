@@ -8,8 +8,8 @@ import pytest
 
 from plantbench.generate import generate_case
 from plantbench.generate.case import grow_species
-from plantbench.generate.leaf import BezierLeaf, leaf_grid, leaf_points
 from plantbench.generate.weber_penn import grow_skeleton
+from plantbench.geometry.leaf import BezierLeaf, leaf_grid, leaf_points
 from plantbench.seeding import rng as seeded_rng
 from plantbench.species import load_species
 

@@ -107,14 +107,43 @@ def reconstruct(
     out: Annotated[Path, typer.Option(help="Output folder for the reconstruction.")],
     seed: Annotated[int, typer.Option(help="Random seed passed to the method.")] = 0,
     species: Annotated[Optional[str], typer.Option(help="Species hint passed to the method.")] = None,  # noqa: UP045
+    points: Annotated[Optional[Path], typer.Option(  # noqa: UP045
+        help="For a points method: the folder holding points.ply (an mvs output) [default: the case's scan].")] = None,
 ) -> None:
-    """Run one method on one case."""
+    """Run one method on one case, on the same input folder the runner prepares (only what a real capture gives,
+    plus the species hint)."""
+    import shutil
+    import tempfile
+
+    from plantbench.hints import load_hint
+    from plantbench.io.ply import read_points, write_points
     from plantbench.methods.api import method_from_spec
+    from plantbench.methods.inputs import is_oracle, prepare_inputs
 
     m = method_from_spec(method)
     if not case.is_dir():
         raise InputError("case folder not found", path=case)
-    m.reconstruct(case, out, seed=seed, species=species)
+    hint = load_hint(species) if species else None
+    with tempfile.TemporaryDirectory(prefix="plantbench-job-") as tmp:
+        points_dir = points
+        if m.inputs == "points" and points_dir is None:
+            if not (case / "scan" / "scan.ply").is_file():
+                raise InputError(f"{m.name} reads a point cloud: pass --points (the output folder of "
+                                 "`plantbench reconstruct CASE --method mvs`) or use a scan capture", path=case)
+            points_dir = Path(tmp) / "points"
+            points_dir.mkdir()
+            write_points(points_dir / "points.ply", read_points(case / "scan" / "scan.ply")[0])
+        inputs = prepare_inputs(Path(tmp) / "input", case, m.inputs, points_dir=points_dir, hint=hint,
+                                oracle=is_oracle(m, {}))
+        result = Path(tmp) / "output"
+        result.mkdir()
+        m.reconstruct(inputs, result, seed=seed, species=species)
+        out.mkdir(parents=True, exist_ok=True)
+        for item in sorted(result.iterdir()):
+            target = out / item.name
+            if target.is_dir():
+                shutil.rmtree(target)
+            shutil.move(str(item), str(target))
     typer.echo(f"{m.name}: wrote {out}")
 
 

@@ -159,7 +159,7 @@ class Leaf:
         Leaf frame to world. In the leaf frame the blade's axis runs along +x from the base at the origin, the
         blade spans y, and +z is the upper-side normal.
     params : dict
-        Bezier leaf parameters (plantbench.generate.leaf.BezierLeaf fields).
+        Bezier leaf parameters (plantbench.geometry.leaf.BezierLeaf fields).
     length, width : float
         Blade length and maximum width, metres.
     """

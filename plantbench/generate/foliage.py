@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plantbench.generate.leaf import PARAM_NAMES, BezierLeaf, leaf_points, tessellate_placed
+from plantbench.geometry.leaf import PARAM_NAMES, BezierLeaf, leaf_points, tessellate_placed
 from plantbench.plant import Leaf, TriMesh
 
 __all__ = ["FoliageParams", "Foliage", "place_leaves"]
@@ -69,7 +69,7 @@ def place_leaves(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, 
                  tangent: np.ndarray, normal: np.ndarray, levels: list[np.ndarray], params: FoliageParams,
                  rng: np.random.Generator, *, nodes: np.ndarray | None = None, axis_index: np.ndarray | None = None,
                  length_factor: np.ndarray | None = None) -> Foliage:
-    """Leaves for a skeleton with node frames (:func:`plantbench.generate.tubes.node_frames`).
+    """Leaves for a skeleton with node frames (:func:`plantbench.geometry.tubes.node_frames`).
 
     nodes : (k,) int, increasing, optional
         The nodes that bear leaves; default: every non-root node thinner than ``params.max_branch_radius``.

@@ -109,7 +109,7 @@ class Wood(Strict):
 
 
 class LeafShape(Strict):
-    """The 21 Bezier leaf parameters (plantbench.generate.leaf.BezierLeaf), unit leaf frame."""
+    """The 21 Bezier leaf parameters (plantbench.geometry.leaf.BezierLeaf), unit leaf frame."""
 
     axis1_x: float = Field(default=1 / 3, ge=-0.5, le=1.5)
     axis1_y: float = Field(default=0.0, ge=-0.5, le=0.5)

@@ -14,9 +14,9 @@ from plantbench.errors import InputError
 from plantbench.generate.colonisation import GrowthParams, grow_space_colonisation
 from plantbench.generate.envelope import envelope_volume, sample_markers
 from plantbench.generate.foliage import FoliageParams, place_leaves
-from plantbench.generate.leaf import BezierLeaf
 from plantbench.generate.params import SpaceColonisationSpecies
-from plantbench.generate.tubes import _levels, node_frames, supported_length_radii, tube_mesh
+from plantbench.geometry.leaf import BezierLeaf
+from plantbench.geometry.tubes import _levels, node_frames, supported_length_radii, tube_mesh
 from plantbench.plant import Plant, Skeleton
 
 __all__ = ["grow", "grow_skeleton", "foliage_params"]

@@ -39,7 +39,7 @@ from plantbench.generate.envelope import shape_ratio
 from plantbench.generate.foliage import place_leaves
 from plantbench.generate.params_wp import BranchLevel, StemLevel, WeberPennSpecies
 from plantbench.generate.space_colonisation import foliage_params
-from plantbench.generate.tubes import _levels, depths, node_frames, tube_mesh
+from plantbench.geometry.tubes import _levels, depths, node_frames, tube_mesh
 from plantbench.plant import Plant, Skeleton
 
 __all__ = ["shape_ratio", "taper_radius", "flare_factor", "WeberPennSkeleton", "grow_skeleton", "grow"]

@@ -67,7 +67,7 @@ def _module_file(name: str) -> Path | None:
     return Path(spec.origin) if spec is not None and spec.origin and spec.origin.endswith(".py") else None
 
 
-STAGE_PACKAGES = ("plantbench.generate", "plantbench.capture", "plantbench.metrics")
+STAGE_PACKAGES = ("plantbench.generate", "plantbench.geometry", "plantbench.capture", "plantbench.metrics")
 """plantbench packages that are stage code: :func:`code_hash` follows their function-level imports."""
 
 
@@ -218,7 +218,8 @@ def make_plan(suite: Suite, methods: list[str] | None = None, *, dataset: tuple[
         "plant": code_hash("plantbench/generate"),
         "capture": code_hash("plantbench/capture"),
         "metrics": code_hash("plantbench/metrics"),
-        "runner": code_hash("plantbench/runner/worker.py"),
+        # the worker and what prepares a method's input folder (it imports them lazily)
+        "runner": code_hash("plantbench/runner/worker.py", "plantbench/methods/inputs.py", "plantbench/hints.py"),
         # Dr.Jit's code generation changes renders and mvs depth: part of every key downstream of the capture
         "llvm": llvm_target_id(),
     }
@@ -226,6 +227,7 @@ def make_plan(suite: Suite, methods: list[str] | None = None, *, dataset: tuple[
         for case_set in s.cases:
             spec = load_species(case_set.species)
             species_bytes = species.get(case_set.species).read_bytes()
+            hint = _hint_hash(case_set.species)
             for seed in case_set.seeds:
                 case_id = f"{case_set.species}-{seed}" + (f"@{sweep_value}" if sweep_value is not None else "")
                 if dataset is not None:
@@ -245,11 +247,11 @@ def make_plan(suite: Suite, methods: list[str] | None = None, *, dataset: tuple[
                     deps = [case_key]
                     if method.inputs == "points":
                         if points_key is None:
-                            points_key = _points_job(plan, s, case_key, seed, case_set.species, version_code)
+                            points_key = _points_job(plan, s, case_key, seed, case_set.species, version_code, hint)
                         deps.append(points_key)
                     options = s.method_options.get(name, {})
                     recon_key = plan.add(Job("method", content_hash(
-                        ["method", name, _method_code_hash(method), deps, options, seed, case_set.species,
+                        ["method", name, _method_code_hash(method), deps, options, seed, case_set.species, hint,
                          version_code["runner"], version_code["llvm"]]),
                         {"method": name, "case": case_key, "points": points_key if method.inputs == "points" else None,
                          "seed": seed, "species": case_set.species, "options": options},
@@ -275,7 +277,15 @@ def _dataset_job(dataset: tuple[Path, Any], case_id: str, s: Suite, version_code
                {"dataset": str(Path(folder).resolve()), "case": case_id}, timeout_s=s.timeout_s)
 
 
-def _points_job(plan: Plan, s: Suite, case_key: str, seed: int, species: str, version_code: dict) -> str:
+def _hint_hash(species: str) -> str:
+    """sha256 of the species' published hint (scenes/hints; validated: a species without one is an error here)."""
+    from plantbench.hints import hints, load_hint
+
+    load_hint(species)
+    return hashlib.sha256(hints.get(species).read_bytes()).hexdigest()[:16]
+
+
+def _points_job(plan: Plan, s: Suite, case_key: str, seed: int, species: str, version_code: dict, hint: str) -> str:
     """The point cloud that 'points' methods reconstruct from: the mvs cloud of the views, or the scan."""
     if s.source == "scan":
         return plan.add(Job("points", content_hash(["points", "scan", case_key, version_code["runner"]]),
@@ -283,7 +293,7 @@ def _points_job(plan: Plan, s: Suite, case_key: str, seed: int, species: str, ve
     mvs = method_from_spec("mvs")
     options = s.method_options.get("mvs", {})
     recon = plan.add(Job("method", content_hash(
-        ["method", "mvs", _method_code_hash(mvs), [case_key], options, seed, species, version_code["runner"],
+        ["method", "mvs", _method_code_hash(mvs), [case_key], options, seed, species, hint, version_code["runner"],
          version_code["llvm"]]),
         {"method": "mvs", "case": case_key, "points": None, "seed": seed, "species": species, "options": options},
         deps=(case_key,), timeout_s=s.timeout_s))

@@ -73,14 +73,7 @@ def run_job(cache: Path, kind: str, key: str, folder: Path, params: dict) -> dic
         elif kind == "points":
             _points(cache, folder, params)
         elif kind == "method":
-            from plantbench.methods.api import method_from_spec
-
-            method = method_from_spec(params["method"])
-            capture_dir = job_folder(cache, "capture", params["case"])
-            if params["points"]:
-                capture_dir = job_folder(cache, "points", params["points"])
-            method.reconstruct(capture_dir, folder, seed=params["seed"], species=params["species"],
-                               **params["options"])
+            _method(cache, folder, params)
             _validate_reconstruction(folder)
         elif kind == "metrics":
             from plantbench.metrics.evaluate import evaluate
@@ -97,6 +90,30 @@ def run_job(cache: Path, kind: str, key: str, folder: Path, params: dict) -> dic
     record = {"status": status, "error": error, "seconds": time.perf_counter() - t0, "kind": kind, "key": key}
     write_json(folder / "status.json", record)
     return record
+
+
+def _method(cache: Path, folder: Path, params: dict) -> None:
+    """Run a method on a fresh input folder outside the cache that holds only what its ``inputs`` allow
+    (:func:`plantbench.methods.inputs.prepare_inputs`), writing into a fresh output folder beside it; the outputs
+    then move into ``folder``. Nothing of plant/ or the cache is reachable from either by a relative path."""
+    import shutil
+    import tempfile
+
+    from plantbench.hints import load_hint
+    from plantbench.methods.api import method_from_spec
+    from plantbench.methods.inputs import is_oracle, prepare_inputs
+
+    method = method_from_spec(params["method"])
+    hint = load_hint(params["species"]) if params.get("species") else None
+    points = job_folder(cache, "points", params["points"]) if params["points"] else None
+    with tempfile.TemporaryDirectory(prefix="plantbench-job-") as tmp:
+        inputs = prepare_inputs(Path(tmp) / "input", job_folder(cache, "capture", params["case"]), method.inputs,
+                                points_dir=points, hint=hint, oracle=is_oracle(method, params["options"]))
+        out = Path(tmp) / "output"
+        out.mkdir()
+        method.reconstruct(inputs, out, seed=params["seed"], species=params["species"], **params["options"])
+        for item in sorted(out.iterdir()):
+            shutil.move(str(item), str(folder / item.name))
 
 
 def _points(cache: Path, folder: Path, params: dict) -> None:

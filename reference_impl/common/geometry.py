@@ -1,10 +1,10 @@
 """Meshes for reconstructed skeletons and leaves, built with the generator's own geometry code.
 
-- :func:`branch_mesh`: generalised cylinders along the skeleton (plantbench.generate.tubes.tube_mesh, the same
+- :func:`branch_mesh`: generalised cylinders along the skeleton (plantbench.geometry.tubes.tube_mesh, the same
   sweep that builds the ground-truth branches), each node's thickest child continuing its axis.
 - :func:`leaf_frames`: a leaf-to-world 4x4 transform per leaf from a base point, an axis and a normal.
 - :func:`quad_leaves`: flat rectangular quads (Xu et al. 2007 section 6: alpha-textured quads).
-- :func:`bezier_leaves`: the Chaurasia-Beardsley Bezier leaf (plantbench.generate.leaf) tessellated per leaf.
+- :func:`bezier_leaves`: the Chaurasia-Beardsley Bezier leaf (plantbench.geometry.leaf) tessellated per leaf.
 Each leaf builder returns the mesh and :class:`plantbench.plant.Leaf` records for leaves.json.
 """
 
@@ -20,7 +20,7 @@ __all__ = ["branch_mesh", "leaf_frames", "quad_leaves", "bezier_leaves"]
 
 def branch_mesh(skeleton: Skeleton, *, edge_length: float, max_sides: int = 12, min_sides: int = 4) -> TriMesh:
     """Tubes along every axis of ``skeleton``; ``edge_length``: target ring edge length, metres."""
-    from plantbench.generate.tubes import main_child_mask, tube_mesh
+    from plantbench.geometry.tubes import main_child_mask, tube_mesh
 
     if len(skeleton) == 0:
         return TriMesh.empty()
@@ -69,8 +69,8 @@ def quad_leaves(transforms: np.ndarray, lengths: np.ndarray, widths: np.ndarray,
 
 def bezier_leaves(transforms: np.ndarray, lengths: np.ndarray, nodes: np.ndarray, *, shape=None,
                   resolution: tuple[int, int] = (2, 4)) -> tuple[TriMesh, list[Leaf]]:
-    """Bezier leaves (plantbench.generate.leaf, default shape unless ``shape`` (a BezierLeaf) is given)."""
-    from plantbench.generate.leaf import BezierLeaf, max_half_width, tessellate_many
+    """Bezier leaves (plantbench.geometry.leaf, default shape unless ``shape`` (a BezierLeaf) is given)."""
+    from plantbench.geometry.leaf import BezierLeaf, max_half_width, tessellate_many
 
     k = len(lengths)
     if k == 0:

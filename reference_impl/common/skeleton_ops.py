@@ -325,7 +325,7 @@ def hermite_smooth(positions: np.ndarray, parents: np.ndarray, *, min_angle_deg:
 
 def branch_orders(parents: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """(n,) branch order: 0 on the stems, +1 at every child that is not its parent's thickest child."""
-    from plantbench.generate.tubes import main_child_mask
+    from plantbench.geometry.tubes import main_child_mask
 
     main = main_child_mask(parents, radii)
     order = np.zeros(len(parents), np.int64)

@@ -28,25 +28,33 @@ from plantbench.errors import InputError
 from plantbench.io.plantio import write_reconstruction
 from plantbench.seeding import rng as seeded_rng
 from reference_impl.common.inputs import load_points
-from reference_impl.guo.params import GENERIC_PRIOR, GuoParams, SpeciesPrior, params_from_options, prior_from_species
+from reference_impl.guo.params import GENERIC_PRIOR, GuoParams, SpeciesPrior, params_from_options, prior_from_hint
 from reference_impl.guo.pipeline import GuoResult, reconstruct_guo
 
 __all__ = ["Guo", "GuoParams", "GuoResult", "SpeciesPrior", "reconstruct_guo", "species_prior"]
 
 
-def species_prior(species: str | None, *, prior: bool = True) -> SpeciesPrior:
-    """The species library entry for ``species`` (InputError, with suggestions, for an unknown name), or the
-    generic prior when ``species`` is None or ``prior`` is False."""
-    if species is None or not prior:
+def species_prior(species: str | None, *, prior: bool = True, hint=None) -> SpeciesPrior:
+    """The prior of the species hint: ``hint`` (a :class:`plantbench.hints.SpeciesHint`, as the runner passes it in
+    ``hint.json``) or the published hint of ``species`` (InputError, with suggestions, for an unknown name); the
+    generic prior when there is neither or ``prior`` is False."""
+    if not prior or (hint is None and species is None):
         return GENERIC_PRIOR
-    from plantbench.species import load_species
+    if hint is None:
+        from plantbench.hints import load_hint
 
-    return prior_from_species(load_species(species))
+        hint = load_hint(species)
+    return prior_from_hint(hint)
 
 
 class Guo:
     name = "guo"
     inputs = "points"
+
+    @staticmethod
+    def is_oracle(options: dict) -> bool:
+        """``leaf_depth="oracle"`` segments the leaves on the exact depth maps: an oracle run."""
+        return options.get("leaf_depth") == "oracle"
 
     def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None,
                     **options) -> GuoResult:
@@ -68,7 +76,9 @@ class Guo:
         if leaf_depth not in ("mvs", "oracle"):
             raise InputError(f"guo: leaf_depth must be 'mvs' or 'oracle', got {leaf_depth!r}")
         params = params_from_options(options)
-        prior = species_prior(species, prior=use_prior)
+        from plantbench.hints import read_hint
+
+        prior = species_prior(species, prior=use_prior, hint=read_hint(capture_dir))
         points = load_points(capture_dir)
         rng = seeded_rng(seed, "guo")
         fitted, leaf_stats = None, None

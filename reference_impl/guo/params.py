@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, fields, replace
 
 from plantbench.errors import InputError
 
-__all__ = ["GuoParams", "SpeciesPrior", "GENERIC_PRIOR", "prior_from_species", "params_from_options"]
+__all__ = ["GuoParams", "SpeciesPrior", "GENERIC_PRIOR", "prior_from_hint", "params_from_options"]
 
 
 @dataclass(frozen=True)
@@ -168,7 +168,7 @@ class GuoParams:
 
 @dataclass(frozen=True)
 class SpeciesPrior:
-    """What the species library tells the method (Table 1 and the species' organs)."""
+    """What the species hint tells the method (:class:`plantbench.hints.SpeciesHint`: Table 2 and the leaves)."""
 
     name: str
     internode_length: float
@@ -180,11 +180,11 @@ class SpeciesPrior:
     diameter_coefficient: float
     """gamma of Eq. 5."""
     roots: int | None
-    """Number of stems (None: count density peaks in the cloud)."""
+    """Number of stems (None: count density peaks in the cloud, for a multi-stem species)."""
     tip_radius: float
     """Radius of a one-internode twig, metres (the thinnest branch the species makes)."""
     leaves: object | None = field(default=None, repr=False)
-    """plantbench.generate.foliage.FoliageParams, or None for the generic leaf."""
+    """reference_impl.guo.leaves.LeafConfig from the hint, or None for the generic leaf."""
 
 
 GENERIC_PRIOR = SpeciesPrior(
@@ -200,39 +200,22 @@ GENERIC_PRIOR = SpeciesPrior(
 """The run without the species hint: Table 2's mean parameters, generic leaves, stems counted from the cloud."""
 
 
-def prior_from_species(spec) -> SpeciesPrior:
-    """The prior of a validated species (plantbench.species.load_species).
+def prior_from_hint(hint) -> SpeciesPrior:
+    """The prior of a published species hint (:class:`plantbench.hints.SpeciesHint`): its Table 2 values, one stem
+    unless it is multi-stem (then counted in the cloud), its twig radius, and leaves of its arrangement and mean
+    length (divergence phi, leaf-bearing branches up to twice the twig radius) [S]."""
+    from reference_impl.guo.leaves import LeafConfig
 
-    A space-colonisation species gives its Table 1 values. A Weber-Penn species has no Table 1: its prior keeps
-    the generic internode length and gamma, and takes what the W&P parameters do say [S]: the roll of the deepest
-    branch level (nRotate) as phi, the mean |nDownAngle| of the branch levels as psi, one stem, the smallest
-    branch radius as the twig radius, and its leaves.
-    """
-    from plantbench.generate.space_colonisation import foliage_params
-
-    if getattr(spec, "family", "space-colonisation") == "weber-penn":
-        levels = spec.branch_levels
-        return SpeciesPrior(
-            name=spec.name,
-            internode_length=GENERIC_PRIOR.internode_length,
-            roll_angle=float(levels[-1].rotate) if levels else GENERIC_PRIOR.roll_angle,
-            branching_angle=float(min(90.0, max(5.0, sum(abs(lv.down_angle) for lv in levels) / len(levels))))
-            if levels else GENERIC_PRIOR.branching_angle,
-            diameter_coefficient=GENERIC_PRIOR.diameter_coefficient,
-            roots=1,
-            tip_radius=float(spec.wood.min_radius),
-            leaves=foliage_params(spec),
-        )
-    t1 = spec.table1
     return SpeciesPrior(
-        name=spec.name,
-        internode_length=float(t1.internode_length),
-        roll_angle=float(t1.roll_angle),
-        branching_angle=float(t1.branching_angle),
-        diameter_coefficient=float(t1.diameter_coefficient),
-        roots=int(spec.roots.count),
-        tip_radius=float(spec.wood.tip_radius),
-        leaves=foliage_params(spec),
+        name=hint.species,
+        internode_length=float(hint.internode_length),
+        roll_angle=float(hint.roll_angle),
+        branching_angle=float(hint.branching_angle),
+        diameter_coefficient=float(hint.diameter_coefficient),
+        roots=None if hint.multi_stem else 1,
+        tip_radius=float(hint.twig_radius),
+        leaves=LeafConfig(length=float(hint.leaf_length), arrangement=hint.leaf_arrangement,
+                          divergence=float(hint.roll_angle), max_radius=2.0 * float(hint.twig_radius)),
     )
 
 

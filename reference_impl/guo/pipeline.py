@@ -10,14 +10,15 @@
    samples of the crown's convex hull (Fig. 8, reference_impl.guo.hull);
 5. growth: L-system 1 with space colonisation, logistic influence distance (Eq. 6-7), growth direction Eq. 9, Eq. 5
    radii and shedding on the fly (reference_impl.guo.growth);
-6. leaves at the nodes of thin branches, placed as the species places them (plantbench.generate.foliage, the
-   generator's own leaf placement and Bezier tessellation) before the skeleton is simplified, then turned about
+6. leaves at the nodes of thin branches near the tips, placed with the species hint's leaf configuration
+   (reference_impl.guo.leaves: arrangement, mean length, phi as the divergence; generic Bezier blade) before the
+   skeleton is simplified, then turned about
    their bases into the cloud around them (the leaf configuration of [40] "considering ... the normal direction";
    :func:`orient_leaves`); only the leaves whose blades lie on the cloud are kept, one per observed leaf
    (:func:`select_leaves`) [S: the seed places procedural leaves; on our 20-view clouds they outnumbered the true
    leaves 3x and put 86 % of the mesh's vertices 6 cm from the surface on average];
 7. branch collapse and Hermite smoothing at 20 deg (reference_impl.guo.refine), Eq. 5 radii on the final skeleton;
-8. generalised-cylinder branches (reference_impl.common.geometry.branch_mesh, the generator's tube mesher).
+8. generalised-cylinder branches (reference_impl.common.geometry.branch_mesh, plantbench.geometry.tubes).
 
 :func:`prepare` does steps 1-4 once (they depend on the cloud and the internode length only), :func:`model` steps
 5-8 for one parameter set, so analysis-by-synthesis (reference_impl.guo.abs) grows many candidates from one
@@ -41,6 +42,7 @@ from reference_impl.common.inputs import MIN_POINTS, check_points
 from reference_impl.common.skeleton_ops import branch_orders
 from reference_impl.guo.growth import allometric_radii, grow, node_levels
 from reference_impl.guo.hull import crown_mask, poisson_disk_in_hull, shell_ratio
+from reference_impl.guo.leaves import LeafConfig, PlacedLeaves, place_leaves
 from reference_impl.guo.params import GENERIC_PRIOR, GuoParams, SpeciesPrior
 from reference_impl.guo.refine import collapse, smooth
 from reference_impl.guo.roots import density_roots, root_axes_and_radii
@@ -89,12 +91,9 @@ class GuoResult:
     info: dict
 
 
-def generic_leaves():
-    """FoliageParams of the generic leaf (the generator's defaults with a :data:`GENERIC_LEAF_LENGTH` blade)."""
-    from plantbench.generate.foliage import FoliageParams
-    from plantbench.generate.leaf import BezierLeaf
-
-    return FoliageParams(shape=BezierLeaf(), length=GENERIC_LEAF_LENGTH)
+def generic_leaves() -> LeafConfig:
+    """The leaf configuration without a species hint: a :data:`GENERIC_LEAF_LENGTH` blade, spiral arrangement."""
+    return LeafConfig(length=GENERIC_LEAF_LENGTH)
 
 
 def prepare(points: np.ndarray, rng: np.random.Generator, params: GuoParams = GuoParams(),
@@ -169,29 +168,28 @@ def prepare(points: np.ndarray, rng: np.random.Generator, params: GuoParams = Gu
     return Prepared(plant, ground, height, extent, markers, mw, len(samples), roots, axes, radii, info, spacing)
 
 
-def _leaves(pos, parents, radii, lateral, foliage, rng, tip_internodes: int):
-    """The species' leaves (plantbench.generate.foliage.place_leaves: thin nodes, phyllotaxis, Bezier blades) on
-    the nodes at most ``tip_internodes`` internodes below a tip ("distributed at the tip nodes along branch
-    directions", section 5.3; 0: every thin node, the generator's rule)."""
-    from plantbench.generate.foliage import place_leaves
-    from plantbench.generate.tubes import node_frames
+def _leaves(pos, parents, radii, lateral, config: LeafConfig, rng, tip_internodes: int) -> PlacedLeaves:
+    """Leaves (:func:`reference_impl.guo.leaves.place_leaves`) on the thin nodes at most ``tip_internodes``
+    internodes below a tip ("distributed at the tip nodes along branch directions", section 5.3; 0: every thin
+    node)."""
+    from plantbench.geometry.tubes import node_frames
 
     main = (parents >= 0) & ~lateral
     tangent, normal, _, _ = node_frames(pos, parents, main)
     levels = tree_levels(parents)
-    eligible_r = radii
+    eligible = np.ones(len(parents), bool)
     if tip_internodes > 0:
         above = np.zeros(len(parents), np.int64)       # internodes from a node up to its farthest tip
         for idx in reversed(levels):
             c = idx[parents[idx] >= 0]
             np.maximum.at(above, parents[c], above[c] + 1)
-        eligible_r = np.where(above < tip_internodes, radii, np.inf)
-    return place_leaves(pos, parents, eligible_r, main, tangent, normal, levels, foliage, rng)
+        eligible = above < tip_internodes
+    return place_leaves(pos, parents, radii, main, tangent, normal, levels, eligible, config, rng)
 
 
 def _blades(verts: np.ndarray, m: int) -> tuple[int, np.ndarray]:
     """Vertices per blade and the (m, q, 3) blade view of a foliage mesh's vertices: m blades of q vertices each,
-    then m 6-vertex petioles (the layout of plantbench.generate.foliage.place_leaves)."""
+    then m 6-vertex petioles (the layout of :func:`reference_impl.guo.leaves.place_leaves`)."""
     q = (len(verts) - 6 * m) // m
     return q, verts[: m * q].reshape(m, q, 3)
 
@@ -265,7 +263,7 @@ def select_leaves(mesh: TriMesh, leaves: list[Leaf], cloud_tree: cKDTree, spacin
     """Keep the leaves the cloud supports, one per observed leaf.
 
     ``mesh`` holds the leaves' blades first (the same number of vertices per leaf) then their 6-vertex petioles,
-    as :func:`~plantbench.generate.foliage.place_leaves` and :func:`orient_leaves` write it. A leaf's support
+    as :func:`reference_impl.guo.leaves.place_leaves` and :func:`orient_leaves` write it. A leaf's support
     residual is the mean distance of its blade vertices to the cloud; leaves with a residual above ``support`` x
     max(``spacing``, :data:`LEAF_SUPPORT_LENGTH` x the leaf's length) are dropped (``support`` 0 keeps all): on a
     dense clean cloud the spacing alone would demand more than a procedural blade's shape can match (a 300k-point

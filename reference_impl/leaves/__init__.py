@@ -3,7 +3,7 @@
 :func:`segment_and_fit` takes a view capture and per-view depth maps to fitted :class:`plantbench.plant.Leaf`
 instances (section 4.1: per-view superpixels, planes, affinity graph and enclosing-ellipse confidence; section 4.2:
 template ICP across views with de-duplication; section 5: Levenberg-Marquardt fit of the 21-parameter Bezier leaf of
-:mod:`plantbench.generate.leaf` with the occlusion weights of Eq. 10-11). :func:`write_leaves` writes the result.
+:mod:`plantbench.geometry.leaf` with the occlusion weights of Eq. 10-11). :func:`write_leaves` writes the result.
 :class:`Leaves` is the same as a method (``leaves``, inputs ``views``) that can run alone.
 Heavy backends (scikit-image, Open3D, PIL) are imported inside the functions that use them.
 """
@@ -41,14 +41,14 @@ def leaves_from_capture(capture_dir: Path, *, depth: str | Path = "mvs", seed: i
     - ``"oracle"``: the capture's exact depth (ground truth: upper bounds only);
     - a folder of per-view maps (``NNNN.npz`` with key ``depth``, or ``NNNN.npy``).
 
-    The species hint, when given, sets the leaf length (``leaves.length`` of the species) that scales delta_plane.
+    The species hint, when given (``capture_dir/hint.json``, as the runner writes it, else the published hint of
+    ``species``), sets the mean leaf length that scales delta_plane.
     """
-    hint = None
-    if species is not None:
-        from plantbench.species import load_species
+    from plantbench.hints import load_hint, read_hint
 
-        hint = float(load_species(species).leaves.length)
     capture_dir = Path(capture_dir)
+    found = read_hint(capture_dir) or (load_hint(species) if species is not None else None)
+    hint = None if found is None else float(found.leaf_length)
     views = views_folder(capture_dir)
     if depth == "oracle":
         return segment_and_fit(views, oracle_depth=True, leaf_length_hint=hint, seed=seed, params=params)
@@ -75,6 +75,11 @@ class Leaves:
 
     name = "leaves"
     inputs = "views"
+
+    @staticmethod
+    def is_oracle(options: dict) -> bool:
+        """``depth="oracle"`` segments on the exact depth maps: an oracle run."""
+        return options.get("depth") == "oracle"
 
     def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None,
                     **options) -> None:

@@ -18,7 +18,7 @@
    vectorised computation; ``LeafParams(lm_backend="scipy")`` uses ``scipy.optimize.least_squares(method="lm")``
    (MINPACK) one leaf at a time, the same energy, an order of magnitude slower for hundreds of leaves.
 
-The leaf model itself is :mod:`plantbench.generate.leaf` (shared with the generator).
+The leaf model itself is :mod:`plantbench.geometry.leaf` (shared with the generator).
 """
 
 from __future__ import annotations
@@ -28,12 +28,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from plantbench.errors import InputError
-from plantbench.generate.leaf import (
+from plantbench.geometry.leaf import (
     BezierLeaf,
-    _axis_control,
-    _axis_frame,
-    _bernstein,
-    _half_controls,
+    axis_control,
+    axis_frame,
+    bernstein,
+    half_controls,
     leaf_points,
     max_half_width,
 )
@@ -50,7 +50,7 @@ __all__ = ["LeafFit", "LeafModel", "fit_leaf", "fit_leaves", "lm_batch", "linear
 class LeafFit:
     """A fitted leaf.
 
-    omega : (21,) float, Bezier parameters (unit leaf, :data:`plantbench.generate.leaf.PARAM_NAMES` order)
+    omega : (21,) float, Bezier parameters (unit leaf, :data:`plantbench.geometry.leaf.PARAM_NAMES` order)
     transform : (4, 4) float, leaf frame (metres) to world; length, width : metres
     rms : weighted RMS residual of the last Levenberg-Marquardt solve, in leaf lengths
     iterations : alternations of UV mapping and Levenberg-Marquardt used
@@ -74,9 +74,9 @@ class LeafFit:
 
 
 class LeafModel:
-    """:func:`plantbench.generate.leaf.leaf_points` at fixed (u, v), fast: the surface is a fixed linear combination
+    """:func:`plantbench.geometry.leaf.leaf_points` at fixed (u, v), fast: the surface is a fixed linear combination
     of the control points of A, F, G and S (Eq. 5-6; both halves), so the (m, 34) weights are computed once and
-    each evaluation is the control points (the model's own :func:`_half_controls`) and one product.
+    each evaluation is the control points (the model's own :func:`half_controls`) and one product.
 
     u, v : (m,) float, as in ``leaf_points``
     """
@@ -87,7 +87,7 @@ class LeafModel:
     @staticmethod
     def controls(omega: np.ndarray) -> np.ndarray:
         """(..., 34, 3) control points: axis, right F, G, S, left F, G, S."""
-        axis, (sr, fr, gr), (sl, fl, gl) = _half_controls(omega)
+        axis, (sr, fr, gr), (sl, fl, gl) = half_controls(omega)
         return np.concatenate([axis, fr, gr, sr, fl, gl, sl], axis=-2)
 
     def __call__(self, omega: np.ndarray) -> np.ndarray:
@@ -119,7 +119,7 @@ def initial_params(half_width: float) -> np.ndarray:
     fit of the quartic to the ellipse's half-width (section 5.1: Omega initialised to the enclosing ellipse)."""
     t = np.linspace(0.0, 1.0, 41)
     target = half_width * np.sqrt(np.clip(1 - (2 * t - 1) ** 2, 0, None))
-    basis = _bernstein(t, 4)[:, 1:4]
+    basis = bernstein(t, 4)[:, 1:4]
     xs, *_ = np.linalg.lstsq(basis, target, rcond=None)
     omega = BezierLeaf().vector()
     omega[0:6] = [1 / 3, 0, 0, 2 / 3, 0, 0]
@@ -132,7 +132,7 @@ def initial_params(half_width: float) -> np.ndarray:
 def model_weights(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """(..., 34) weights of the control points of :meth:`LeafModel.controls` for surface points at (u, v) (...):
     Eq. 5-6, the axis by the cubic cross-section weight of u, F, G and S of the point's half by the others."""
-    b3, b4, bu = _bernstein(v, 3), _bernstein(v, 4), _bernstein(np.abs(u), 3)
+    b3, b4, bu = bernstein(v, 3), bernstein(v, 4), bernstein(np.abs(u), 3)
     w = np.zeros(u.shape + (34,))
     w[..., 0:4] = bu[..., 0:1] * b3
     right = (u >= 0)[..., None]
@@ -173,7 +173,7 @@ def uv_mapping_batch(omega: np.ndarray, points: np.ndarray, valid: np.ndarray,
 
     k, n = valid.shape
     vj = np.linspace(0.0, 1.0, scanlines)
-    apts, normal = _axis_frame(_axis_control(omega), np.broadcast_to(vj, (k, scanlines)))  # (k, s, 3)
+    apts, normal = axis_frame(axis_control(omega), np.broadcast_to(vj, (k, scanlines)))  # (k, s, 3)
     apts, normal = apts[..., :2], normal[..., :2]
     tangent = np.stack([normal[..., 1], -normal[..., 0]], -1)  # in-plane unit tangents
     half = 0.5 * np.linalg.norm(np.diff(apts, axis=1), axis=2)  # (k, s - 1)
@@ -214,7 +214,7 @@ def linear_jacobian(omega: np.ndarray) -> np.ndarray:
     inner control point i of S, F, G is ``A(vbar_i) + frac xs_i n(vbar_i) + z_i zhat`` with frac 1, 1/3, 2/3; the
     left half mirrors xs)."""
     omega = np.asarray(omega, float)
-    _, normal = _axis_frame(_axis_control(omega), omega[:, 6:9])  # (k, 3, 3)
+    _, normal = axis_frame(axis_control(omega), omega[:, 6:9])  # (k, 3, 3)
     jac = np.zeros((len(omega), 12, 34, 3))
     # control layout of LeafModel.controls: axis 0-3, right F 4-8, G 9-13, S 14-18, left F 19-23, G 24-28, S 29-33
     for first, frac, zgroup in ((4, 1 / 3, 1), (9, 2 / 3, 2), (14, 1.0, 0)):

@@ -30,7 +30,7 @@ import numpy as np
 
 from plantbench.cameras import Camera, read_cameras
 from plantbench.errors import InputError
-from plantbench.generate.leaf import BezierLeaf
+from plantbench.geometry.leaf import BezierLeaf
 from plantbench.plant import Leaf, TriMesh
 from plantbench.seeding import rng as seeded_rng
 
@@ -284,7 +284,7 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
 def fitted_mesh(result: LeafFitResult, resolution: tuple[int, int] = (4, 8)) -> TriMesh:
     """The fitted leaves as one triangle mesh in world coordinates (the generator's tessellation at each leaf's
     transform), blades in leaf order, the same number of vertices each."""
-    from plantbench.generate.leaf import tessellate_placed
+    from plantbench.geometry.leaf import tessellate_placed
 
     if not result.fits:
         return TriMesh.empty()

@@ -65,7 +65,7 @@ def test_leaf_bookkeeping(laurel_case):
 
 def test_leaves_json_reproduces_the_leaf_mesh(laurel_case):
     """Each leaf's blade is the Bezier leaf of its recorded parameters, length and transform."""
-    from plantbench.generate.leaf import PARAM_NAMES, tessellate
+    from plantbench.geometry.leaf import PARAM_NAMES, tessellate
 
     plant, meta = read_plant(laurel_case[0])
     res = tuple(meta.parameters["leaves"]["resolution"])

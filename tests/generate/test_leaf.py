@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from plantbench.generate.leaf import (
+from plantbench.geometry.leaf import (
     PARAM_NAMES,
     BezierLeaf,
     bezier,

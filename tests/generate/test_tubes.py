@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from plantbench.generate.tubes import (
+from plantbench.geometry.tubes import (
     depths,
     main_child_mask,
     node_frames,

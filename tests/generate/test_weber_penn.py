@@ -15,8 +15,8 @@ from plantbench.generate import FAMILIES, generate_case
 from plantbench.generate.foliage import place_leaves
 from plantbench.generate.params_wp import WeberPennSpecies
 from plantbench.generate.space_colonisation import foliage_params
-from plantbench.generate.tubes import _levels, node_frames
 from plantbench.generate.weber_penn import flare_factor, grow, grow_skeleton, shape_ratio, taper_radius
+from plantbench.geometry.tubes import _levels, node_frames
 from plantbench.io.plantio import read_plant
 from plantbench.io.ply import read_mesh
 from plantbench.paths import species_dir

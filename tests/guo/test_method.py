@@ -76,10 +76,10 @@ def test_multi_stem_shrub_gets_one_root_per_stem(tmp_path):
     for b in bases:
         pts.append(sample_surface(rng, random_tree(rng, height=1.0, levels=1, segment=0.04, base=b), 8000))
     write_points(tmp_path / "points.ply", np.concatenate(pts))
-    Guo().reconstruct(tmp_path, tmp_path / "out", seed=0, species="cercis")   # cercis: 5 stems in the library
+    Guo().reconstruct(tmp_path, tmp_path / "out", seed=0, species="cercis")   # cercis: a multi-stem shrub
     sk = read_reconstruction(tmp_path / "out").skeleton
     roots = sk.positions[sk.roots][:, :2]
-    for b in bases:      # the three real stems are found (the top-k clusters, k from the species)
+    for b in bases:      # the three real stems are found (the hint says multi-stem: the density peaks are counted)
         assert np.min(np.linalg.norm(roots - b, axis=1)) < 0.05
     Guo().reconstruct(tmp_path, tmp_path / "out2", seed=0, prior=False)           # no prior: count the peaks
     sk2 = read_reconstruction(tmp_path / "out2").skeleton
@@ -143,7 +143,7 @@ def test_analysis_by_synthesis_keeps_the_best_candidate(tree_case, tmp_path):
 def test_merge_leaves_replaces_the_procedural_leaves_the_images_saw():
     """merge_leaves: a procedural leaf whose blade centre lies within half its length of an image-fitted leaf is
     replaced by it; the others stay, after the fitted ones, renumbered; the mesh keeps exactly their triangles."""
-    from plantbench.generate.leaf import BezierLeaf, tessellate
+    from plantbench.geometry.leaf import BezierLeaf, tessellate
     from plantbench.plant import Leaf, TriMesh
     from reference_impl.guo.pipeline import merge_leaves
 

@@ -150,16 +150,24 @@ def test_smooth_rounds_chain_corners_but_not_junctions():
     del turn
 
 
-def test_species_prior_for_a_weber_penn_species_uses_its_parameters():
-    from plantbench.species import load_species
+def test_species_prior_comes_from_the_published_hint():
+    """guo's prior is the hint file's values (scenes/hints), not the generator's species parameters."""
+    import tomllib
+
+    from plantbench.paths import scenes_dir
     from reference_impl.guo import species_prior
 
-    spec = load_species("wp_conifer")
-    prior = species_prior("wp_conifer")
-    levels = spec.branch_levels
-    assert prior.roll_angle == levels[-1].rotate
-    assert prior.branching_angle == min(90.0, max(5.0, sum(abs(lv.down_angle) for lv in levels) / len(levels)))
-    assert prior.tip_radius == spec.wood.min_radius and prior.roots == 1
+    for name in ("wp_conifer", "cercis", "maple"):
+        hint = tomllib.loads((scenes_dir() / "hints" / f"{name}.toml").read_text())
+        prior = species_prior(name)
+        assert (prior.internode_length, prior.roll_angle, prior.branching_angle, prior.diameter_coefficient,
+                prior.tip_radius) == (hint["internode_length"], hint["roll_angle"], hint["branching_angle"],
+                                      hint["diameter_coefficient"], hint["twig_radius"])
+        assert prior.roots == (None if hint["multi_stem"] else 1)
+        assert prior.leaves.length == hint["leaf_length"] and prior.leaves.arrangement == hint["leaf_arrangement"]
+        assert prior.leaves.divergence == hint["roll_angle"]
+    # the generator's conifer limbs droop at 55-80 degrees; the botanist's hint says 70
+    assert species_prior("wp_conifer").branching_angle == 70.0
 
 
 def test_select_leaves_keeps_supported_leaves_once(rng):
@@ -167,11 +175,10 @@ def test_select_leaves_keeps_supported_leaves_once(rng):
     leaf at the same place). The kept leaves are exactly the sampled ones, one per place, with a consistent mesh."""
     from dataclasses import replace
 
-    from plantbench.generate.foliage import FoliageParams, place_leaves
-    from plantbench.generate.leaf import BezierLeaf
-    from plantbench.generate.tubes import node_frames
+    from plantbench.geometry.tubes import node_frames
     from plantbench.plant import TriMesh
     from reference_impl.common.graph import tree_levels
+    from reference_impl.guo.leaves import LeafConfig, place_leaves
     from reference_impl.guo.pipeline import select_leaves
 
     n = 13
@@ -179,8 +186,8 @@ def test_select_leaves_keeps_supported_leaves_once(rng):
     par = np.arange(n) - 1
     main = par >= 0
     tangent, normal, _, _ = node_frames(pos, par, main)
-    fol = place_leaves(pos, par, np.full(n, 0.001), main, tangent, normal, tree_levels(par),
-                       FoliageParams(shape=BezierLeaf(), length=0.08), rng)
+    fol = place_leaves(pos, par, np.full(n, 0.001), main, tangent, normal, tree_levels(par), np.ones(n, bool),
+                       LeafConfig(length=0.08), rng)
     m = len(fol.leaves)
     q = (len(fol.mesh.vertices) - 6 * m) // m
     blades = fol.mesh.vertices[: m * q].reshape(m, q, 3)
@@ -206,3 +213,32 @@ def test_select_leaves_keeps_supported_leaves_once(rng):
     # support 0 and no dedup: unchanged
     same_mesh, same, c0 = select_leaves(fol.mesh, fol.leaves, cKDTree(cloud), spacing, support=0.0, dedup=False)
     assert same_mesh is fol.mesh and len(same) == m and c0 == {"unsupported": 0, "duplicates": 0}
+
+
+def test_hint_leaves_follow_the_arrangement_and_length(rng):
+    """guo's own leaf placement: opposite leaves come in pairs half a turn apart, spiral ones one per node, whorls
+    per_whorl; thick nodes and ineligible nodes bear none; every blade has the hint's length."""
+    from plantbench.geometry.tubes import node_frames
+    from reference_impl.common.graph import tree_levels
+    from reference_impl.guo.leaves import LeafConfig, place_leaves
+
+    n = 9
+    pos = np.c_[np.zeros(n), np.zeros(n), np.arange(n) * 0.1]
+    par = np.arange(n) - 1
+    radii = np.where(np.arange(n) < 3, 0.01, 0.001)       # nodes 0-2 too thick to bear leaves
+    eligible = np.arange(n) != 5                           # node 5 excluded by the caller
+    main = par >= 0
+    tangent, normal, _, _ = node_frames(pos, par, main)
+    bearing = [i for i in range(1, n) if radii[i] <= 0.002 and eligible[i]]
+    for arrangement, per in (("spiral", 1), ("opposite", 2), ("whorl", 3)):
+        cfg = LeafConfig(length=0.07, arrangement=arrangement)
+        placed = place_leaves(pos, par, radii, main, tangent, normal, tree_levels(par), eligible, cfg, rng)
+        assert [lf.node for lf in placed.leaves] == [i for i in bearing for _ in range(per)]
+        assert all(lf.length == 0.07 for lf in placed.leaves)
+        m = len(placed.leaves)
+        q = (len(placed.mesh.vertices) - 6 * m) // m
+        assert len(placed.mesh.vertices) == m * (q + 6) and placed.mesh.faces.max() == len(placed.mesh.vertices) - 1
+        if arrangement == "opposite":  # the two blade bases of a node lie on opposite sides of the stem
+            b = np.array([lf.transform[:2, 3] for lf in placed.leaves]).reshape(-1, 2, 2)
+            cos = np.sum(b[:, 0] * b[:, 1], axis=1) / np.linalg.norm(b[:, 0], axis=1) / np.linalg.norm(b[:, 1], axis=1)
+            assert np.all(cos < -0.5)  # pi apart, up to the 10-degree azimuth jitter of each

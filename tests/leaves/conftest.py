@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from plantbench.cameras import Camera, look_at
-from plantbench.generate.leaf import BezierLeaf, leaf_points, silhouette_outline
+from plantbench.geometry.leaf import BezierLeaf, leaf_points, silhouette_outline
 
 LAUREL = BezierLeaf(sil_v1=0.15, sil_v2=0.5, sil_v3=0.85, sil_x1=0.18, sil_x2=0.22, sil_x3=0.1, axis1_z=0.03,
                     axis2_z=0.02)

@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from plantbench.errors import InputError
-from plantbench.generate.leaf import BezierLeaf, leaf_points
+from plantbench.geometry.leaf import BezierLeaf, leaf_points
 from reference_impl.leaves.ellipse import Ellipse
 from reference_impl.leaves.fit import LeafModel, fit_leaf, initial_params, uv_mapping
 from reference_impl.leaves.params import LeafParams

@@ -25,12 +25,15 @@ SCRIPTS = {
     ),
     "slow_ok": textwrap.dedent(
         """
-        import sys, time, shutil
+        import sys, time
         from pathlib import Path
+        import numpy as np
+        from plantbench.io.plantio import write_reconstruction
+        from plantbench.plant import Skeleton
         time.sleep(1.5)
-        case, out = Path(sys.argv[1]), Path(sys.argv[2])
-        out.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(case / "plant" / "skeleton.ply", out / "skeleton.ply")
+        out = Path(sys.argv[2])
+        skel = Skeleton(np.array([[0.0, 0, 0], [0, 0, 0.3]]), np.array([0.01, 0.005]), np.array([-1, 0]))
+        write_reconstruction(out, skel)  # (methods cannot read plant/: a fixed two-node stem)
         """
     ),
 }

@@ -31,8 +31,9 @@ import numpy as np
 
 from plantbench.plant import TriMesh
 
-__all__ = ["BezierLeaf", "PARAM_NAMES", "bezier", "leaf_points", "leaf_grid", "tessellate", "tessellate_many", "tessellate_placed",
-           "silhouette_outline", "max_half_width"]
+__all__ = ["BezierLeaf", "PARAM_NAMES", "bezier", "bernstein", "axis_control", "axis_frame", "half_controls",
+           "leaf_points", "leaf_grid", "silhouette_outline", "max_half_width", "tessellate", "tessellate_many",
+           "tessellate_placed"]
 
 
 @dataclass(frozen=True)
@@ -101,7 +102,7 @@ assert len(PARAM_NAMES) == 21
 _BINOM = {2: np.array([1.0, 2.0, 1.0]), 3: np.array([1.0, 3.0, 3.0, 1.0]), 4: np.array([1.0, 4.0, 6.0, 4.0, 1.0])}
 
 
-def _bernstein(t: np.ndarray, degree: int) -> np.ndarray:
+def bernstein(t: np.ndarray, degree: int) -> np.ndarray:
     """(..., degree + 1) Bernstein basis at ``t`` (...)."""
     t = np.asarray(t, dtype=np.float64)
     s = 1.0 - t
@@ -114,7 +115,7 @@ def _bernstein(t: np.ndarray, degree: int) -> np.ndarray:
 
 def _bernstein_deriv(t: np.ndarray, degree: int) -> np.ndarray:
     """(..., degree + 1) derivative of the Bernstein basis at ``t``."""
-    lower = _bernstein(t, degree - 1)
+    lower = bernstein(t, degree - 1)
     pad = np.zeros(lower.shape[:-1] + (1,))
     return degree * (np.concatenate([pad, lower], -1) - np.concatenate([lower, pad], -1))
 
@@ -127,11 +128,11 @@ def bezier(control: np.ndarray, t: np.ndarray) -> np.ndarray:
     returns : (..., m, 3) float
     """
     control = np.asarray(control, dtype=np.float64)
-    basis = _bernstein(t, control.shape[-2] - 1)  # (m, d+1)
+    basis = bernstein(t, control.shape[-2] - 1)  # (m, d+1)
     return np.einsum("mk,...kc->...mc", basis, control)
 
 
-def _axis_control(omega: np.ndarray) -> np.ndarray:
+def axis_control(omega: np.ndarray) -> np.ndarray:
     """(..., 4, 3) control points of the axis A."""
     lead = omega.shape[:-1]
     a0 = np.zeros(lead + (3,))
@@ -139,9 +140,9 @@ def _axis_control(omega: np.ndarray) -> np.ndarray:
     return np.stack([a0, omega[..., 0:3], omega[..., 3:6], a3], axis=-2)
 
 
-def _axis_frame(axis: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def axis_frame(axis: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Axis points (..., m, 3) and in-plane unit normals (Eq. 2) at parameters t (..., m)."""
-    basis = _bernstein(t, 3)
+    basis = bernstein(t, 3)
     dbasis = _bernstein_deriv(t, 3)
     pts = np.einsum("...mk,...kc->...mc", basis, axis)
     tan = np.einsum("...mk,...kc->...mc", dbasis, axis)
@@ -154,18 +155,18 @@ def _axis_frame(axis: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 def _longitudinal_controls(omega: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Axis control (..., 4, 3) and right-half silhouette, F and G control points (..., 5, 3) each (Eq. 3-4)."""
-    axis, right, _ = _half_controls(omega)
+    axis, right, _ = half_controls(omega)
     return (axis, *right)
 
 
-def _half_controls(omega: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+def half_controls(omega: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
     """Axis control (..., 4, 3) and the silhouette, F and G control points (..., 5, 3) of the right and of the left
     half (which mirrors the sideways offsets of S, F and G) (Eq. 3-4), from one evaluation of the axis frame."""
     omega = np.asarray(omega, dtype=np.float64)
-    axis = _axis_control(omega)
+    axis = axis_control(omega)
     vbar = omega[..., 6:9]
     zs, zf, zg = omega[..., 12:15], omega[..., 15:18], omega[..., 18:21]
-    pts, normal = _axis_frame(axis, vbar)  # (..., 3, 3)
+    pts, normal = axis_frame(axis, vbar)  # (..., 3, 3)
     zhat = np.array([0.0, 0.0, 1.0])
     base = axis[..., :1, :]
     apex = axis[..., 3:, :]
@@ -193,15 +194,15 @@ def leaf_points(omega: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     omega = np.asarray(omega, dtype=np.float64)
     lead = omega.shape[:-1]
     out = np.empty(lead + (len(u), 3))
-    axis, right, left = _half_controls(omega)
+    axis, right, left = half_controls(omega)
     for sel, (sil, f, g) in ((u >= 0, right), (u < 0, left)):
         idx = np.flatnonzero(sel)
         if len(idx) == 0:
             continue
-        b3 = _bernstein(v[idx], 3)  # (q, 4)
-        b4 = _bernstein(v[idx], 4)  # (q, 5)
+        b3 = bernstein(v[idx], 3)  # (q, 4)
+        b4 = bernstein(v[idx], 4)  # (q, 5)
         a_v = np.matmul(b3, axis)  # (..., q, 3)
-        bu = _bernstein(np.abs(u[idx]), 3)  # (q, 4): cross-section weights of A, F, G, S
+        bu = bernstein(np.abs(u[idx]), 3)  # (q, 4): cross-section weights of A, F, G, S
         out[..., idx, :] = (bu[:, 0:1] * a_v + bu[:, 1:2] * np.matmul(b4, f) + bu[:, 2:3] * np.matmul(b4, g)
                             + bu[:, 3:4] * np.matmul(b4, sil))
     return out

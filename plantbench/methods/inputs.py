@@ -1,0 +1,133 @@
+"""A method's input folder: only what a real capture gives (DESIGN.md section 3), in a fresh folder of its own.
+
+The runner and ``plantbench reconstruct`` copy into a new temporary folder, outside the job cache, what the method's
+``inputs`` allow:
+
+- ``views``: ``views/images/``, ``views/cameras.json``, ``views/colmap/``, ``views/transforms.json`` and
+  ``views/capture.json`` without the ground-truth plant summary; never ``views/depth``, ``views/instance``,
+  ``views/foliage`` or ``views/normal`` (exact maps, ground truth);
+- ``scan``: ``scan/scan.ply`` with x, y, z and station only (a real scanner gives no wood/leaf label or leaf id)
+  and ``scan/stations.json``;
+- ``points``: ``points.ply`` (coordinates), plus for a view capture the views as above and the mvs stage's own
+  depth maps (``depth/``).
+
+and the species hint as ``hint.json`` when the run gives one (:mod:`plantbench.hints`). Files are copied, not
+linked, so no path inside the folder leads back to the cache or to ``plant/``. A method that declares itself an
+oracle (``oracle = True``, or ``is_oracle(options)`` for one whose options make it one) gets the whole capture,
+ground truth included.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+from plantbench.errors import InputError
+
+__all__ = ["prepare_inputs", "is_oracle", "VIEW_ENTRIES", "GROUND_TRUTH"]
+
+VIEW_ENTRIES = ("images", "cameras.json", "colmap", "transforms.json")
+"""What a method reading views gets of ``views/`` (besides capture.json, filtered)."""
+
+GROUND_TRUTH = ("plant", "views/depth", "views/instance", "views/foliage", "views/normal")
+"""Ground truth inside a capture: only oracles read it (and the scan's label, leaf_id columns)."""
+
+_CAPTURE_GROUND_TRUTH_KEYS = ("plant", "scan")
+"""Keys of views/capture.json that describe the ground truth (the plant's species, seed and height; the scan's
+label counts): dropped from a method's copy."""
+
+
+def is_oracle(method, options: dict | None = None) -> bool:
+    """Whether ``method`` reads ground truth with these options: its ``is_oracle(options)`` when it has one, else
+    its ``oracle`` attribute (False when absent)."""
+    check = getattr(method, "is_oracle", None)
+    if callable(check):
+        return bool(check(dict(options or {})))
+    return bool(getattr(method, "oracle", False))
+
+
+def _copy_views(src: Path, dest: Path) -> None:
+    if not (src / "cameras.json").exists():
+        raise InputError("no views/cameras.json: not a view capture", path=src)
+    dest.mkdir(parents=True)
+    for name in VIEW_ENTRIES:
+        s = src / name
+        if s.is_dir():
+            shutil.copytree(s, dest / name)
+        elif s.is_file():
+            shutil.copyfile(s, dest / name)
+    cap = src / "capture.json"
+    if cap.is_file():
+        try:
+            doc = json.loads(cap.read_text())
+        except ValueError as exc:
+            raise InputError(f"malformed JSON ({exc})", path=cap) from None
+        for key in _CAPTURE_GROUND_TRUTH_KEYS:
+            doc.pop(key, None)
+        (dest / "capture.json").write_text(json.dumps(doc, indent=1, sort_keys=True))
+
+
+def _copy_scan(src: Path, dest: Path) -> None:
+    from plantbench.io.ply import read_points, write_points
+
+    ply = src / "scan.ply"
+    if not ply.is_file():
+        raise InputError("no scan/scan.ply: not a scan capture", path=src)
+    pts, fields = read_points(ply)
+    dest.mkdir(parents=True)
+    keep = {"station": fields["station"]} if "station" in fields else None
+    write_points(dest / "scan.ply", pts, keep)
+    if (src / "stations.json").is_file():
+        shutil.copyfile(src / "stations.json", dest / "stations.json")
+
+
+def prepare_inputs(dest: str | os.PathLike, capture_dir: str | os.PathLike, inputs: str, *,
+                   points_dir: str | os.PathLike | None = None, hint=None, oracle: bool = False) -> Path:
+    """Fill the new folder ``dest`` with what a method whose ``inputs`` are 'views', 'scan' or 'points' may read.
+
+    Parameters
+    ----------
+    dest : folder to create (must not exist)
+    capture_dir : the case (a capture: views/ and/or scan/, plant/ when it has ground truth)
+    inputs : the method's ``inputs``
+    points_dir : for 'points' methods, the point stage's folder (points.ply, and depth/ of the mvs stage)
+    hint : a :class:`plantbench.hints.SpeciesHint` written as hint.json, or None
+    oracle : give the whole capture, ground truth included (an oracle method)
+
+    Returns
+    -------
+    ``dest``
+    """
+    dest, capture = Path(dest), Path(capture_dir)
+    if inputs not in ("views", "scan", "points"):
+        raise InputError(f"method inputs must be 'views', 'scan' or 'points', got {inputs!r}")
+    dest.mkdir(parents=True)
+    if oracle:
+        for entry in sorted(capture.iterdir()):
+            if entry.name in ("views", "scan", "plant"):
+                shutil.copytree(entry, dest / entry.name)
+    elif inputs == "views":
+        _copy_views(capture / "views", dest / "views")
+    elif inputs == "scan":
+        _copy_scan(capture / "scan", dest / "scan")
+    if inputs == "points":
+        if points_dir is None:
+            raise InputError("a points method needs a point cloud: the mvs stage's or the scan's", path=capture)
+        src = Path(points_dir)
+        if not (src / "points.ply").is_file():
+            raise InputError("no points.ply", path=src)
+        from plantbench.io.ply import read_points, write_points
+
+        pts, _ = read_points(src / "points.ply")  # coordinates only: the scan's labels are ground truth
+        write_points(dest / "points.ply", pts)
+        if not oracle and (capture / "views" / "cameras.json").exists():
+            _copy_views(capture / "views", dest / "views")
+        if (src / "depth").is_dir():  # the mvs stage's own depth maps (estimated, not the exact ones)
+            shutil.copytree(src / "depth", dest / "depth")
+    if hint is not None:
+        from plantbench.hints import write_hint
+
+        write_hint(dest, hint)
+    return dest
