@@ -62,6 +62,14 @@ def _git_sha() -> str | None:
     return None
 
 
+def oracle_methods(suite: Suite, methods: list[str]) -> list[str]:
+    """The methods of a run that read ground truth with the suite's options (marked in every table)."""
+    from plantbench.methods.api import method_from_spec
+    from plantbench.methods.inputs import is_oracle
+
+    return [m for m in methods if is_oracle(method_from_spec(m), suite.method_options.get(m, {}))]
+
+
 def run_metadata(suite: Suite, methods: list[str]) -> dict:
     """What every results file records: versions, git SHA, config hash, Mitsuba variant."""
     from plantbench import __version__
@@ -135,6 +143,7 @@ def run_suite(
     run_dir.mkdir(parents=True, exist_ok=True)
     meta = run_metadata(suite, method_names)
     meta["started"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+    meta["oracles"] = oracle_methods(suite, method_names)
     if frozen is not None:
         meta["dataset"] = {"path": str(frozen[0].resolve()), "manifest_sha256": manifest_sha256(frozen[0]),
                            "git_sha": frozen[1].git_sha, "llvm_target": frozen[1].llvm_target}

@@ -120,7 +120,7 @@ def test_report_writes_every_format_with_family_rows(tmp_path, rng):
     tex = (run / "report" / "report.tex").read_text()
     assert r"\begin{tabular}" in tex and "stava.S\\_T" in tex
     fam = pd.read_csv(run / "report" / "family.csv")
-    assert set(fam["family"]) == {"space-colonisation", "weber-penn"} and set(fam["method"]) == {"gt", "livny"}
+    assert set(fam["family"]) == {"space-colonisation", "weber-penn"} and set(fam["method"]) == {"gt (oracle)", "livny"}  # the oracle is marked
 
 
 def test_family_study_ranks_methods_per_family(tmp_path, rng):
