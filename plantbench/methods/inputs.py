@@ -3,9 +3,11 @@
 The runner and ``plantbench reconstruct`` copy into a new temporary folder, outside the job cache, what the method's
 ``inputs`` allow:
 
-- ``views``: ``views/images/``, ``views/cameras.json``, ``views/colmap/``, ``views/transforms.json`` and
-  ``views/capture.json`` without the ground-truth plant summary; never ``views/depth``, ``views/instance``,
-  ``views/foliage`` or ``views/normal`` (exact maps, ground truth);
+- ``views``: ``views/images/``, ``views/cameras.json``, ``views/transforms.json``, ``views/colmap/`` with the
+  cameras and images but no points (the capture's points3D.txt holds exact ground-truth surface samples, which no
+  real capture has; a method that wants sparse points triangulates them) and ``views/capture.json`` without the
+  ground-truth plant summary; never ``views/depth``, ``views/instance``, ``views/foliage`` or ``views/normal``
+  (exact maps, ground truth);
 - ``scan``: ``scan/scan.ply`` with x, y, z and station only (a real scanner gives no wood/leaf label or leaf id)
   and ``scan/stations.json``;
 - ``points``: ``points.ply`` (coordinates), plus for a view capture the views as above and the mvs stage's own
@@ -28,8 +30,8 @@ from plantbench.errors import InputError
 
 __all__ = ["prepare_inputs", "is_oracle", "VIEW_ENTRIES", "GROUND_TRUTH"]
 
-VIEW_ENTRIES = ("images", "cameras.json", "colmap", "transforms.json")
-"""What a method reading views gets of ``views/`` (besides capture.json, filtered)."""
+VIEW_ENTRIES = ("images", "cameras.json", "transforms.json")
+"""What a method reading views gets of ``views/`` as it is (besides colmap/ and capture.json, filtered)."""
 
 GROUND_TRUTH = ("plant", "views/depth", "views/instance", "views/foliage", "views/normal")
 """Ground truth inside a capture: only oracles read it (and the scan's label, leaf_id columns)."""
@@ -58,6 +60,12 @@ def _copy_views(src: Path, dest: Path) -> None:
             shutil.copytree(s, dest / name)
         elif s.is_file():
             shutil.copyfile(s, dest / name)
+    if (src / "colmap").is_dir():
+        from plantbench.cameras import read_cameras
+        from plantbench.capture.formats import write_colmap_text
+
+        cameras, names = read_cameras(src / "cameras.json")
+        write_colmap_text(dest / "colmap", cameras, names)  # the same cameras and images, no ground-truth points
     cap = src / "capture.json"
     if cap.is_file():
         try:

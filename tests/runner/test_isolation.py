@@ -99,8 +99,14 @@ def _fake_capture(root):
         (v / sub).mkdir(parents=True)
     (v / "images" / "0000.png").write_bytes(b"png")
     (v / "depth" / "0000.npy").write_bytes(b"npy")
-    (v / "colmap" / "cameras.txt").write_text("# cams")
-    (v / "cameras.json").write_text("{}")
+    from plantbench.cameras import look_at, write_cameras
+    from plantbench.capture.formats import Tracks, write_colmap_text
+
+    cam = look_at((3.0, 0.0, 1.0), (0.0, 0.0, 1.0), fov_x_deg=40.0, width=64, height=48)
+    write_cameras(v / "cameras.json", [cam], ["0000.png"])
+    write_colmap_text(v / "colmap", [cam], ["0000.png"], Tracks(np.array([[0.0, 0.0, 1.0]]), np.zeros((1, 3), np.uint8),
+                                                               np.zeros(1, np.int64), np.zeros(1, np.int64),
+                                                               np.array([[32.0, 24.0]])))
     (v / "transforms.json").write_text("{}")
     (v / "capture.json").write_text(json.dumps({"plant": {"height": 3.2, "species": "maple"}, "seed": 1,
                                                 "scan": {"points": 10}, "settings": {"views": 1}}))
@@ -117,7 +123,17 @@ def test_prepare_inputs_per_kind(tmp_path):
     views = prepare_inputs(tmp_path / "v", cap, "views")
     got = sorted(str(p.relative_to(views)) for p in views.rglob("*"))
     assert got == ["views", "views/cameras.json", "views/capture.json", "views/colmap", "views/colmap/cameras.txt",
-                   "views/images", "views/images/0000.png", "views/transforms.json"]
+                   "views/colmap/images.txt", "views/colmap/points3D.txt", "views/images", "views/images/0000.png",
+                   "views/transforms.json"]
+    # the COLMAP model keeps its cameras and images (pycolmap reads it), not the ground-truth points
+    import PIL.Image  # noqa: F401  (before pycolmap: zlib clash)
+    import pycolmap
+
+    full = pycolmap.Reconstruction(str(cap / "views" / "colmap"))
+    mine = pycolmap.Reconstruction(str(views / "views" / "colmap"))
+    assert full.num_points3D() == 1 and mine.num_points3D() == 0
+    assert mine.num_images() == 1 and (views / "views" / "colmap" / "cameras.txt").read_text() == \
+        (cap / "views" / "colmap" / "cameras.txt").read_text()
     assert json.loads((views / "views" / "capture.json").read_text()) == {"seed": 1, "settings": {"views": 1}}
     scan = prepare_inputs(tmp_path / "s", cap, "scan")
     pts, fields = read_points(scan / "scan" / "scan.ply")
