@@ -14,7 +14,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plantbench.geometry.leaf import PARAM_NAMES, BezierLeaf, leaf_points, tessellate_placed
+from plantbench.geometry.leaf import (
+    PARAM_NAMES,
+    PRISM_FACES,
+    BezierLeaf,
+    leaf_points,
+    petiole_prisms,
+    tessellate_placed,
+)
+from plantbench.geometry.tubes import axis_positions, unit
 from plantbench.plant import Leaf, TriMesh
 
 __all__ = ["FoliageParams", "Foliage", "place_leaves"]
@@ -51,20 +59,6 @@ class Foliage:
     face_ids: np.ndarray
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return v / np.where(n > 1e-15, n, 1.0)
-
-
-def _axis_index(parents: np.ndarray, main: np.ndarray, levels: list[np.ndarray]) -> np.ndarray:
-    """(n,) position of each node along its axis (0 at the axis start)."""
-    k = np.zeros(len(parents), np.int64)
-    for idx in levels:
-        c = idx[(parents[idx] >= 0) & main[idx]]
-        k[c] = k[parents[c]] + 1
-    return k
-
-
 def place_leaves(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, main: np.ndarray,
                  tangent: np.ndarray, normal: np.ndarray, levels: list[np.ndarray], params: FoliageParams,
                  rng: np.random.Generator, *, nodes: np.ndarray | None = None, axis_index: np.ndarray | None = None,
@@ -87,7 +81,7 @@ def place_leaves(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, 
         nodes = np.flatnonzero((parents >= 0) & (radii <= p.max_branch_radius))
     else:
         nodes = np.asarray(nodes, dtype=np.int64)
-    k_axis = _axis_index(parents, main, levels)[nodes] if axis_index is None else np.asarray(axis_index, np.int64)
+    k_axis = axis_positions(parents, main, levels)[nodes] if axis_index is None else np.asarray(axis_index, np.int64)
     if p.arrangement == "spiral":
         per = 1
         az = np.radians(p.divergence) * k_axis[:, None] + np.zeros((1, 1))
@@ -108,21 +102,21 @@ def place_leaves(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, 
     b = np.cross(t, nrm)
     radial = np.cos(az)[:, None] * nrm + np.sin(az)[:, None] * b
     beta = np.radians(p.insertion_angle) + rng.normal(0.0, np.radians(8.0), m)
-    pet = _unit(np.cos(beta)[:, None] * t + np.sin(beta)[:, None] * radial)
+    pet = unit(np.cos(beta)[:, None] * t + np.sin(beta)[:, None] * radial)
     pet_start = positions[node_of]
     base = positions[node_of] + radii[node_of, None] * radial + p.petiole_length * pet
     # blade axis: from the petiole direction towards the horizontal
     horiz = pet * np.array([1.0, 1.0, 0.0])
     hn = np.linalg.norm(horiz, axis=1)
     horiz = np.where(hn[:, None] > 1e-6, horiz / np.maximum(hn, 1e-12)[:, None], radial * np.array([1.0, 1.0, 0.0]))
-    horiz = _unit(horiz)
+    horiz = unit(horiz)
     droop = np.clip(p.droop + rng.normal(0.0, 0.1, m), 0.0, 1.0)
-    x = _unit((1 - droop)[:, None] * pet + droop[:, None] * horiz)
+    x = unit((1 - droop)[:, None] * pet + droop[:, None] * horiz)
     up = np.array([0.0, 0.0, 1.0])
     z = up - (x @ up)[:, None] * x
     bad = np.linalg.norm(z, axis=1) < 1e-6
     z[bad] = np.cross(x[bad], radial[bad])
-    z = _unit(z)
+    z = unit(z)
     roll = rng.normal(0.0, np.radians(p.roll_sd), m)
     y = np.cross(z, x)
     z = np.cos(roll)[:, None] * z + np.sin(roll)[:, None] * y
@@ -147,18 +141,9 @@ def place_leaves(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, 
     q = world.shape[1]
     blade_ids = np.repeat(np.arange(m), len(blade_faces) // m)
     # petioles: triangular prisms from the twig axis to the blade base
-    e = _unit(base - pet_start)
-    e1 = _unit(np.cross(e, np.where(np.abs(e[:, [2]]) < 0.9, up, np.array([1.0, 0.0, 0.0]))))
-    e2 = np.cross(e, e1)
-    th = 2 * np.pi * np.arange(3) / 3
-    ring = np.cos(th)[None, :, None] * e1[:, None, :] + np.sin(th)[None, :, None] * e2[:, None, :]
-    pr = p.petiole_radius
-    pv = np.concatenate([pet_start[:, None, :] + pr * ring, base[:, None, :] + pr * ring], axis=1)  # (m, 6, 3)
-    k = np.arange(3)
-    k1 = (k + 1) % 3
-    prism = np.concatenate([np.stack([k, k1, 3 + k1], 1), np.stack([k, 3 + k1, 3 + k], 1)])  # (6, 3)
+    pv = petiole_prisms(pet_start, base, p.petiole_radius)  # (m, 6, 3)
     off = m * q
-    pet_faces = (prism[None] + (off + np.arange(m) * 6)[:, None, None]).reshape(-1, 3)
+    pet_faces = (PRISM_FACES[None] + (off + np.arange(m) * 6)[:, None, None]).reshape(-1, 3)
     pet_ids = np.repeat(np.arange(m), 6)
     verts = np.concatenate([world.reshape(-1, 3), pv.reshape(-1, 3)])
     faces = np.concatenate([blade_faces, pet_faces])

@@ -33,7 +33,7 @@ from plantbench.plant import TriMesh
 
 __all__ = ["BezierLeaf", "PARAM_NAMES", "bezier", "bernstein", "axis_control", "axis_frame", "half_controls",
            "leaf_points", "leaf_grid", "silhouette_outline", "max_half_width", "tessellate", "tessellate_many",
-           "tessellate_placed"]
+           "tessellate_placed", "petiole_prisms", "PRISM_FACES"]
 
 
 @dataclass(frozen=True)
@@ -292,3 +292,20 @@ def tessellate(leaf: BezierLeaf | np.ndarray, length: float = 1.0, resolution: t
     omega = leaf.vector() if isinstance(leaf, BezierLeaf) else np.asarray(leaf, dtype=np.float64)
     verts, faces = tessellate_many(omega[None], np.array([length]), resolution)
     return TriMesh(verts[0], faces)
+
+
+PRISM_FACES = np.array([[0, 1, 4], [1, 2, 5], [2, 0, 3], [0, 4, 3], [1, 5, 4], [2, 3, 5]])
+"""The six side triangles of a triangular prism whose vertices are ring 0-2 at one end and 3-5 at the other."""
+
+
+def petiole_prisms(start: np.ndarray, base: np.ndarray, radius: float) -> np.ndarray:
+    """(m, 6, 3) vertices of triangular prisms of ``radius`` from ``start`` (m, 3) to ``base`` (m, 3), a petiole
+    from the twig axis to each blade base; :data:`PRISM_FACES` index each prism's six vertices."""
+    from plantbench.geometry.tubes import unit
+
+    e = unit(base - start)
+    e1 = unit(np.cross(e, np.where(np.abs(e[:, [2]]) < 0.9, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))))
+    e2 = np.cross(e, e1)
+    th = 2 * np.pi * np.arange(3) / 3
+    ring = np.cos(th)[None, :, None] * e1[:, None, :] + np.sin(th)[None, :, None] * e2[:, None, :]
+    return np.concatenate([start[:, None, :] + radius * ring, base[:, None, :] + radius * ring], axis=1)

@@ -15,12 +15,27 @@ import numpy as np
 
 from plantbench.plant import TriMesh
 
-__all__ = ["depths", "main_child_mask", "supported_lengths", "supported_length_radii", "node_frames", "tube_mesh"]
+__all__ = ["unit", "depths", "axis_positions", "main_child_mask", "supported_lengths", "supported_length_radii",
+           "node_frames", "tube_mesh"]
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
+def unit(v: np.ndarray) -> np.ndarray:
+    """``v`` (..., 3) normalised along its last axis; zero vectors stay zero."""
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     return v / np.where(n > 1e-15, n, 1.0)
+
+
+_unit = unit
+
+
+def axis_positions(parents: np.ndarray, main: np.ndarray, levels: list[np.ndarray]) -> np.ndarray:
+    """(n,) index of each node along its axis (0 where an axis starts; ``main`` marks the nodes that continue their
+    parent's axis; ``levels`` the nodes by depth, roots first): the phyllotaxis counter."""
+    k = np.zeros(len(parents), np.int64)
+    for idx in levels:
+        c = idx[(parents[idx] >= 0) & main[idx]]
+        k[c] = k[parents[c]] + 1
+    return k
 
 
 def _perpendicular(d: np.ndarray) -> np.ndarray:

@@ -13,10 +13,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plantbench.geometry.leaf import PARAM_NAMES, BezierLeaf, leaf_points, tessellate_placed
+from plantbench.geometry.leaf import (
+    PARAM_NAMES,
+    PRISM_FACES,
+    BezierLeaf,
+    leaf_points,
+    petiole_prisms,
+    tessellate_placed,
+)
+from plantbench.geometry.tubes import axis_positions, unit
 from plantbench.plant import Leaf, TriMesh
 
-__all__ = ["LeafConfig", "PlacedLeaves", "place_leaves", "axis_positions"]
+__all__ = ["LeafConfig", "PlacedLeaves", "place_leaves"]
 
 
 @dataclass(frozen=True)
@@ -49,20 +57,6 @@ class PlacedLeaves:
     mesh: TriMesh
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return v / np.where(n > 1e-15, n, 1.0)
-
-
-def axis_positions(parents: np.ndarray, main: np.ndarray, levels: list[np.ndarray]) -> np.ndarray:
-    """(n,) index of each node along its axis (0 where an axis starts): the phyllotaxis counter."""
-    k = np.zeros(len(parents), np.int64)
-    for idx in levels:
-        c = idx[(parents[idx] >= 0) & main[idx]]
-        k[c] = k[parents[c]] + 1
-    return k
-
-
 def place_leaves(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, main: np.ndarray,
                  tangent: np.ndarray, normal: np.ndarray, levels: list[np.ndarray], eligible: np.ndarray,
                  config: LeafConfig, rng: np.random.Generator) -> PlacedLeaves:
@@ -86,35 +80,26 @@ def place_leaves(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, 
     t, nrm = tangent[node_of], normal[node_of]
     radial = np.cos(az)[:, None] * nrm + np.sin(az)[:, None] * np.cross(t, nrm)
     beta = np.radians(config.insertion_angle)
-    pet = _unit(np.cos(beta) * t + np.sin(beta) * radial)
+    pet = unit(np.cos(beta) * t + np.sin(beta) * radial)
     start = positions[node_of]
     lengths = np.full(m, float(config.length))
     base = start + radii[node_of, None] * radial + config.petiole_ratio * lengths[:, None] * pet
     horiz = pet * np.array([1.0, 1.0, 0.0])
     flat = np.linalg.norm(horiz, axis=1) < 1e-6
     horiz[flat] = radial[flat] * np.array([1.0, 1.0, 0.0])
-    x = _unit((1 - config.droop) * pet + config.droop * _unit(horiz))
+    x = unit((1 - config.droop) * pet + config.droop * unit(horiz))
     z = np.array([0.0, 0.0, 1.0]) - x[:, [2]] * x
     bad = np.linalg.norm(z, axis=1) < 1e-6
     z[bad] = np.cross(x[bad], radial[bad])
-    z = _unit(z)
+    z = unit(z)
     rot = np.round(np.stack([x, np.cross(z, x), z], axis=2), 9)
     base = np.round(base, 9)
     omega = np.repeat(config.shape.vector()[None], m, 0)
     world, blade_faces = tessellate_placed(omega, lengths, rot, base, config.resolution)
     q = world.shape[1]
     # petioles: triangular prisms from the twig axis to the blade base
-    e = _unit(base - start)
-    e1 = _unit(np.cross(e, np.where(np.abs(e[:, [2]]) < 0.9, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])))
-    e2 = np.cross(e, e1)
-    th = 2 * np.pi * np.arange(3) / 3
-    ring = np.cos(th)[None, :, None] * e1[:, None, :] + np.sin(th)[None, :, None] * e2[:, None, :]
-    r = config.petiole_radius
-    pv = np.concatenate([start[:, None, :] + r * ring, base[:, None, :] + r * ring], axis=1)
-    k = np.arange(3)
-    k1 = (k + 1) % 3
-    prism = np.concatenate([np.stack([k, k1, 3 + k1], 1), np.stack([k, 3 + k1, 3 + k], 1)])
-    pet_faces = (prism[None] + (m * q + np.arange(m) * 6)[:, None, None]).reshape(-1, 3)
+    pv = petiole_prisms(start, base, config.petiole_radius)
+    pet_faces = (PRISM_FACES[None] + (m * q + np.arange(m) * 6)[:, None, None]).reshape(-1, 3)
     verts = np.concatenate([world.reshape(-1, 3), pv.reshape(-1, 3)])
     faces = np.concatenate([blade_faces, pet_faces])
     ids = np.concatenate([np.repeat(np.arange(m), len(blade_faces) // m), np.repeat(np.arange(m), 6)])

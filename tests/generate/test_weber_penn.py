@@ -297,10 +297,10 @@ def test_place_leaves_explicit_nodes_equal_the_default():
     fp = foliage_params(spec)
     a = place_leaves(sk.positions, sk.parents, sk.radii, main, t, n, levels, fp, np.random.default_rng(0))
     nodes = np.flatnonzero((sk.parents >= 0) & (sk.radii <= fp.max_branch_radius))
-    from plantbench.generate.foliage import _axis_index
+    from plantbench.geometry.tubes import axis_positions
 
     b = place_leaves(sk.positions, sk.parents, sk.radii, main, t, n, levels, fp, np.random.default_rng(0),
-                     nodes=nodes, axis_index=_axis_index(sk.parents, main, levels)[nodes],
+                     nodes=nodes, axis_index=axis_positions(sk.parents, main, levels)[nodes],
                      length_factor=np.ones(len(nodes)))
     assert len(a.leaves) == len(b.leaves) > 0
     np.testing.assert_array_equal(a.mesh.vertices, b.mesh.vertices)
