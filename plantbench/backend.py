@@ -197,6 +197,16 @@ _CPUINFO_FLAG = {"bmi": "bmi1", "lzcnt": "abm", "sse3": "pni", "sse4.1": "sse4_1
 """LLVM feature names that /proc/cpuinfo spells otherwise (the rest are the same)."""
 
 
+PIN_REQUIRES = "+avx,+avx2,+fma,+f16c,+bmi,+bmi2"
+"""The CPU features that mark a CPU able to run :data:`PINNED_TARGET` (every such x86-64 CPU, Intel Haswell and AMD
+Zen on, also has the SSE4, POPCNT and LZCNT it lists; /proc/cpuinfo spells LZCNT inconsistently)."""
+
+
+def host_can_pin() -> bool:
+    """True on an x86-64 CPU that runs the pinned target's kernels (:data:`PIN_REQUIRES`)."""
+    return platform.machine().lower() in ("x86_64", "amd64") and _host_has(PIN_REQUIRES)
+
+
 def _host_has(features: str) -> bool:
     """True when /proc/cpuinfo lists every '+feature' of ``features`` (False when it cannot be read)."""
     try:
@@ -242,7 +252,7 @@ def pin_llvm_target(dr=None) -> LLVMTarget | None:
     target = requested_llvm_target()
     if target is None or not dr.has_backend(dr.JitBackend.LLVM):
         return None
-    if os.environ.get("PLANTBENCH_LLVM_TARGET") is None and not _host_has(target.features):
+    if os.environ.get("PLANTBENCH_LLVM_TARGET") is None and not host_can_pin():
         warnings.warn(f"this CPU lacks {target.features}: Dr.Jit keeps its host target, and renders and mvs depth "
                       "are not comparable with other machines'", BackendWarning, stacklevel=2)
         return None

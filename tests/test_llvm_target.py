@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import json
 import os
-import platform
 import subprocess
 import sys
 
 import pytest
 
-from plantbench.backend import PINNED_TARGET, _host_has, find_libllvm
+from plantbench.backend import PINNED_TARGET, _host_has, find_libllvm, host_can_pin
 from plantbench.paths import project_root
 
 AVX2_WIDTH_4 = PINNED_TARGET.spec()[: -len(str(PINNED_TARGET.width))] + "4"
@@ -65,7 +64,7 @@ print(json.dumps(out))
 """
 
 pytestmark = pytest.mark.skipif(
-    platform.machine().lower() not in ("x86_64", "amd64") or not find_libllvm() or not _host_has(PINNED_TARGET.features),
+    not host_can_pin() or not find_libllvm(),
     reason="needs an x86-64 CPU with AVX2 and LLVM 19 (the pinned target)")
 
 

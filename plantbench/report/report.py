@@ -364,6 +364,7 @@ def distance_figure(run_dir: str | os.PathLike, path: str | os.PathLike, *, max_
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import pandas as pd
 
     from plantbench.io.plantio import read_plant, read_reconstruction
     from plantbench.metrics.surface import point_to_mesh_distances
@@ -377,6 +378,8 @@ def distance_figure(run_dir: str | os.PathLike, path: str | os.PathLike, *, max_
             by_species.setdefault(c["species"], c["case"])
     rows = list(by_species.values())[:max_cases]
     methods = sorted({c["method"] for c in cells if c["case"] in rows})
+    marked = mark_oracles(pd.DataFrame({"method": methods}), Path(run_dir))["method"]
+    oracles = {m for m, label in zip(methods, marked) if label != m}
     if not rows or not methods:
         return None
     fig, axes = plt.subplots(len(rows), len(methods) + 1, figsize=(2.4 * (len(methods) + 1) + 1.0, 3.0 * len(rows)),
@@ -393,7 +396,7 @@ def distance_figure(run_dir: str | os.PathLike, path: str | os.PathLike, *, max_
         axes[i][0].set_title(f"{case}: ground truth", fontsize=8)
         for j, method in enumerate(methods, start=1):
             ax = axes[i][j]
-            ax.set_title(method, fontsize=8)
+            ax.set_title(method + (ORACLE_MARK if method in oracles else ""), fontsize=8)
             cell = row.get(method)
             mesh = read_reconstruction(cell["recon"]).mesh if cell else None
             if mesh is None or len(mesh.vertices) == 0:
