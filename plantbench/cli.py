@@ -321,9 +321,24 @@ def variability(
     skipped = [p for p in PERTURBATIONS if p not in chosen and (not only or p.name in only)]
     for p in skipped:
         console.print(f"skipped {p.name}: this CPU lacks {p.requires}")
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
     t0 = time.perf_counter()
-    tables = run_study(spec, out, perturbations=chosen,
-                       on_run=lambda p: console.print(f"[bold]{p.name}[/bold]: {p.description}"))
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=console) as bar:
+        runs = bar.add_task("study", total=len(chosen))
+        jobs = bar.add_task("jobs", total=None)
+
+        def on_run(p) -> None:
+            bar.update(runs, completed=chosen.index(p), description=f"study: run {p.name}")
+            bar.reset(jobs)
+            bar.console.print(f"{p.name}: {p.description}")
+
+        def progress(done: int, total: int, rec: dict) -> None:
+            bar.update(jobs, completed=done, total=total, description=f"jobs: {rec['kind']} {rec['status']}")
+
+        tables = run_study(spec, out, perturbations=chosen, on_run=on_run, progress=progress)
+        bar.update(runs, completed=len(chosen))
     study = study_table(tables)
     tol = tolerances_from_study(study, spec.name)
     folder = reports / "variability"

@@ -172,3 +172,26 @@ def test_baseline_from_a_table_keys_cells(rng):
     t.loc[(t["case"] == "b-1") & (t["metric"] == "stava.S_T"), ["value", "status"]] = [None, "failed"]
     assert [(e.case, e.metric) for e in make_baseline(t, "t").entries] == [("a-1", "stava.S_T")]
     assert all(math.isfinite(e.value) for e in b.entries)
+
+
+def test_variability_cli_end_to_end(tmp_path):
+    """`plantbench variability` on a tiny suite (gt only, two runs): writes the study, tolerances and baseline, and
+    the gate passes the study's own runs with them."""
+    from tests.runner.conftest import suite_toml
+
+    toml = suite_toml(tmp_path / "tiny.toml", ["gt"])
+    reports = tmp_path / "reports"
+    proc = subprocess.run([sys.executable, "-m", "plantbench.cli", "variability", "--suite", str(toml), "--only",
+                           "threads2", "--out", str(tmp_path / "runs"), "--reports", str(reports)],
+                          capture_output=True, text=True, env={"COLUMNS": "200", "PATH": "/usr/bin:/bin"})
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    study = pd.read_csv(reports / "variability" / "study.csv")
+    assert set(study["perturbation"]) == {"reference", "threads2"}
+    tol = load_tolerances(reports / "tolerances.json")
+    assert tol.perturbations == ["reference", "threads2"] and tol.entries
+    assert all(e.bound == "floor" for e in tol.entries if e.method == "gt")  # exact rows: no spread
+    assert "# Variability study: suite tiny" in (reports / "variability" / "README.md").read_text()
+    for run in ("reference", "threads2"):
+        gate = subprocess.run([sys.executable, "-m", "plantbench.cli", "gate", str(tmp_path / "runs" / run / "tiny"),
+                               "--baseline", str(reports / "baseline.json")], capture_output=True, text=True)
+        assert gate.returncode == 0 and "gate passed" in gate.stdout, gate.stdout + gate.stderr
