@@ -31,7 +31,7 @@ from plantbench.paths import cache_dir
 
 __all__ = ["LLVM_CANDIDATES", "find_libllvm", "select_variant", "load_mitsuba", "apply_thread_budget",
            "BackendWarning", "LLVMTarget", "PINNED_TARGET", "requested_llvm_target", "pin_llvm_target",
-           "current_llvm_target", "load_drjit"]
+           "current_llvm_target", "load_drjit", "host_can_pin", "host_has", "host_cpu_name", "llvm_target_id"]
 
 LLVM_CANDIDATES = (
     "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1",
@@ -193,7 +193,7 @@ def requested_llvm_target() -> LLVMTarget | None:
     return PINNED_TARGET
 
 
-_CPUINFO_FLAG = {"bmi": "bmi1", "lzcnt": "abm", "sse3": "pni", "sse4.1": "sse4_1", "sse4.2": "sse4_2"}
+_CPUINFO_FLAG = {"bmi": "bmi1", "sse3": "pni", "sse4.1": "sse4_1", "sse4.2": "sse4_2"}
 """LLVM feature names that /proc/cpuinfo spells otherwise (the rest are the same)."""
 
 
@@ -204,10 +204,10 @@ Zen on, also has the SSE4, POPCNT and LZCNT it lists; /proc/cpuinfo spells LZCNT
 
 def host_can_pin() -> bool:
     """True on an x86-64 CPU that runs the pinned target's kernels (:data:`PIN_REQUIRES`)."""
-    return platform.machine().lower() in ("x86_64", "amd64") and _host_has(PIN_REQUIRES)
+    return platform.machine().lower() in ("x86_64", "amd64") and host_has(PIN_REQUIRES)
 
 
-def _host_has(features: str) -> bool:
+def host_has(features: str) -> bool:
     """True when /proc/cpuinfo lists every '+feature' of ``features`` (False when it cannot be read)."""
     try:
         with open("/proc/cpuinfo") as fh:
@@ -253,7 +253,7 @@ def pin_llvm_target(dr=None) -> LLVMTarget | None:
     if target is None or not dr.has_backend(dr.JitBackend.LLVM):
         return None
     if os.environ.get("PLANTBENCH_LLVM_TARGET") is None and not host_can_pin():
-        warnings.warn(f"this CPU lacks {target.features}: Dr.Jit keeps its host target, and renders and mvs depth "
+        warnings.warn(f"this CPU lacks {PIN_REQUIRES}: Dr.Jit keeps its host target, and renders and mvs depth "
                       "are not comparable with other machines'", BackendWarning, stacklevel=2)
         return None
     set_target, *_ = _jit_core(dr)
@@ -271,10 +271,11 @@ def llvm_target_id() -> str:
     target = requested_llvm_target()
     if target is not None:
         return target.spec()
-    return f"host:{platform.machine()}:{_host_cpu_name()}"
+    return f"host:{platform.machine()}:{host_cpu_name()}"
 
 
-def _host_cpu_name() -> str:
+def host_cpu_name() -> str:
+    """The CPU's model name (/proc/cpuinfo), for records."""
     try:
         with open("/proc/cpuinfo") as fh:
             return next(line for line in fh if line.startswith("model name")).split(":", 1)[1].strip()

@@ -112,38 +112,13 @@ def reconstruct(
 ) -> None:
     """Run one method on one case, on the same input folder the runner prepares (only what a real capture gives,
     plus the species hint)."""
-    import shutil
-    import tempfile
-
-    from plantbench.hints import load_hint
-    from plantbench.io.ply import read_points, write_points
     from plantbench.methods.api import method_from_spec
-    from plantbench.methods.inputs import is_oracle, prepare_inputs
+    from plantbench.methods.inputs import run_isolated
 
     m = method_from_spec(method)
     if not case.is_dir():
         raise InputError("case folder not found", path=case)
-    hint = load_hint(species) if species else None
-    with tempfile.TemporaryDirectory(prefix="plantbench-job-") as tmp:
-        points_dir = points
-        if m.inputs == "points" and points_dir is None:
-            if not (case / "scan" / "scan.ply").is_file():
-                raise InputError(f"{m.name} reads a point cloud: pass --points (the output folder of "
-                                 "`plantbench reconstruct CASE --method mvs`) or use a scan capture", path=case)
-            points_dir = Path(tmp) / "points"
-            points_dir.mkdir()
-            write_points(points_dir / "points.ply", read_points(case / "scan" / "scan.ply")[0])
-        inputs = prepare_inputs(Path(tmp) / "input", case, m.inputs, points_dir=points_dir, hint=hint,
-                                oracle=is_oracle(m, {}))
-        result = Path(tmp) / "output"
-        result.mkdir()
-        m.reconstruct(inputs, result, seed=seed, species=species)
-        out.mkdir(parents=True, exist_ok=True)
-        for item in sorted(result.iterdir()):
-            target = out / item.name
-            if target.is_dir():
-                shutil.rmtree(target)
-            shutil.move(str(item), str(target))
+    run_isolated(m, case, out, seed=seed, species=species, points_dir=points)
     typer.echo(f"{m.name}: wrote {out}")
 
 
@@ -183,10 +158,11 @@ def run(
 
     spec = load_suite(suite)
     method_list = [m.strip() for m in methods.split(",")] if methods else None
-    if dataset is not None:  # a damaged dataset is refused before any progress is shown
-        from plantbench.dataset import verify_dataset
+    frozen = None
+    if dataset is not None:  # verified once, before any progress is shown
+        from plantbench.dataset import open_dataset
 
-        verify_dataset(dataset)
+        frozen = open_dataset(dataset, spec)
     console = _console()
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=console, transient=False) as bar:
@@ -200,7 +176,7 @@ def run(
 
         try:
             result = run_suite(spec, out, methods=method_list, workers=workers, executor=executor,
-                               scheduler=scheduler, progress=progress, dataset=dataset)
+                               scheduler=scheduler, progress=progress, dataset=frozen)
         except KeyboardInterrupt:
             console.print("interrupted: finished jobs are cached; run the same command again to resume")
             raise typer.Exit(130) from None
@@ -247,13 +223,14 @@ def gate(
         load_tolerances,
         make_baseline,
         read_results,
+        read_run_meta,
         tolerances_path,
         write_baseline,
     )
 
     table = read_results(run_dir)
     if write:
-        meta = _run_meta(run_dir)
+        meta = read_run_meta(run_dir)
         b = make_baseline(table, meta.get("suite", run_dir.name), llvm_target=meta.get("llvm_target"),
                           git_sha=meta.get("git_sha"))
         write_baseline(baseline, b)
@@ -280,15 +257,6 @@ def gate(
     raise typer.Exit(1)
 
 
-def _run_meta(run_dir: Path) -> dict:
-    import json
-
-    try:
-        return json.loads((run_dir / "run.json").read_text())
-    except (OSError, ValueError):
-        return {}
-
-
 @app.command()
 def variability(
     suite: Annotated[str, typer.Option(help="Suite name or path to a suite TOML.")] = "quick",
@@ -303,8 +271,11 @@ def variability(
     image noise, thread count), then write the gate's baseline (the reference run) and its tolerances."""
     import time
 
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from plantbench.backend import host_cpu_name
     from plantbench.io.atomic import atomic_write
-    from plantbench.report.gate import make_baseline, write_baseline, write_tolerances
+    from plantbench.report.gate import make_baseline, read_run_meta, write_baseline, write_tolerances
     from plantbench.report.variability import (
         PERTURBATIONS,
         available_perturbations,
@@ -321,7 +292,6 @@ def variability(
     skipped = [p for p in PERTURBATIONS if p not in chosen and (not only or p.name in only)]
     for p in skipped:
         console.print(f"skipped {p.name}: this CPU lacks {p.requires}")
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     t0 = time.perf_counter()
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
@@ -345,10 +315,8 @@ def variability(
     folder.mkdir(parents=True, exist_ok=True)
     with atomic_write(folder / "study.csv", "w") as fh:
         study.to_csv(fh, index=False)
-    meta = _run_meta(out / "reference" / spec.name)
-    from plantbench.backend import _host_cpu_name
-
-    header = (f"Made by `plantbench variability --suite {spec.name}` on {_host_cpu_name()} "
+    meta = read_run_meta(out / "reference" / spec.name)
+    header = (f"Made by `plantbench variability --suite {spec.name}` on {host_cpu_name()} "
               f"(code {meta.get('git_sha')}, {time.perf_counter() - t0:.0f} s for {len(chosen)} runs). "
               "study.csv holds every run's headline values; ../tolerances.json the tolerances; ../baseline.json "
               "the reference run's values.")

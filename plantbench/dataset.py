@@ -29,7 +29,7 @@ from plantbench.errors import InputError
 from plantbench.io.atomic import atomic_write, write_json
 from plantbench.schemas import Strict, load_json
 
-__all__ = ["DatasetCase", "Manifest", "pack_suite", "verify_dataset", "file_sha256", "manifest_sha256",
+__all__ = ["DatasetCase", "Manifest", "pack_suite", "verify_dataset", "open_dataset", "file_sha256", "manifest_sha256",
            "DATASET_FORMAT", "LICENCE"]
 
 DATASET_FORMAT = "plantbench.dataset/1"
@@ -101,6 +101,21 @@ def verify_dataset(folder: str | os.PathLike) -> Manifest:
     return manifest
 
 
+def open_dataset(folder: str | os.PathLike, suite) -> tuple[Path, Manifest]:
+    """(folder, manifest) of a dataset verified file by file (:func:`verify_dataset`) that holds ``suite`` as it is
+    now: same name, cases, capture settings and root seed (the captures are frozen), else :class:`InputError`."""
+    manifest = verify_dataset(folder)
+    where = Path(folder) / "manifest.json"
+    if manifest.suite != suite.name:
+        raise InputError(f"the dataset holds suite {manifest.suite!r}, not {suite.name!r}", path=where)
+    now = suite.model_dump(mode="json")
+    for part in ("capture", "cases", "root_seed"):
+        if manifest.suite_config.get(part) != now.get(part):
+            raise InputError(f"the suite's {part} differ from the dataset's (the captures are frozen: run the suite "
+                             "as packed, or pack it again)", path=where)
+    return Path(folder), manifest
+
+
 def _datasheet(manifest: Manifest) -> str:
     cfg = manifest.suite_config
     cap = cfg.get("capture", {})
@@ -141,12 +156,14 @@ def pack_suite(suite, out: str | os.PathLike, *, cache: str | os.PathLike = "run
     from plantbench.backend import llvm_target_id, select_variant
     from plantbench.runner.execute import execute_plan
     from plantbench.runner.plan import Plan, code_hash, make_plan
-    from plantbench.runner.run import _git_sha
+    from plantbench.runner.run import git_sha
     from plantbench.runner.worker import job_folder
 
     out, cache = Path(out), Path(cache)
     if out.exists() and not force:
         raise InputError("already exists (pass --force to replace it)", path=out)
+    # the suite's plan with one method gives one cell per case (its id, species, capture key); only the plant and
+    # capture jobs run
     full = make_plan(suite, ["gt"])
     plan = Plan(suite, {k: j for k, j in full.jobs.items() if j.kind in ("plant", "capture")})
     records, _ = execute_plan(plan, cache, workers=workers, progress=progress)
@@ -171,7 +188,7 @@ def pack_suite(suite, out: str | os.PathLike, *, cache: str | os.PathLike = "run
         files = {str(p.relative_to(tmp)): file_sha256(p) for p in _case_files(tmp)}
         manifest = Manifest(
             suite=suite.name, suite_config=suite.model_dump(mode="json"), plantbench_version=__version__,
-            git_sha=_git_sha(), code={"generate": code_hash("plantbench/generate"),
+            git_sha=git_sha(), code={"generate": code_hash("plantbench/generate"),
                                       "capture": code_hash("plantbench/capture")},
             llvm_target=llvm_target_id(), mitsuba_variant=select_variant(),
             created=time.strftime("%Y-%m-%dT%H:%M:%S%z"), cases=cases, files=files,

@@ -16,7 +16,7 @@ import sys
 
 import pytest
 
-from plantbench.backend import PINNED_TARGET, _host_has, find_libllvm, host_can_pin
+from plantbench.backend import PINNED_TARGET, find_libllvm, host_can_pin, host_has
 from plantbench.paths import project_root
 
 AVX2_WIDTH_4 = PINNED_TARGET.spec()[: -len(str(PINNED_TARGET.width))] + "4"
@@ -81,7 +81,7 @@ def _child(host: str, folder, *, pin: bool = True) -> dict:
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    hosts = [AVX2_WIDTH_4, PINNED_TARGET.spec()] + ([AVX512_WIDTH_16] if _host_has("+avx512f,+avx512dq,+avx512vl,+avx512bw")
+    hosts = [AVX2_WIDTH_4, PINNED_TARGET.spec()] + ([AVX512_WIDTH_16] if host_has("+avx512f,+avx512dq,+avx512vl,+avx512bw")
                                                    else [])
     base = tmp_path_factory.mktemp("llvm")
     pinned = {h: _child(h, base / f"pinned{i}") for i, h in enumerate(hosts)}

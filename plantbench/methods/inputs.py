@@ -24,11 +24,12 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import tempfile
 from pathlib import Path
 
 from plantbench.errors import InputError
 
-__all__ = ["prepare_inputs", "is_oracle", "VIEW_ENTRIES", "GROUND_TRUTH"]
+__all__ = ["prepare_inputs", "run_isolated", "is_oracle", "VIEW_ENTRIES", "GROUND_TRUTH"]
 
 VIEW_ENTRIES = ("images", "cameras.json", "transforms.json")
 """What a method reading views gets of ``views/`` as it is (besides colmap/ and capture.json, filtered)."""
@@ -100,7 +101,8 @@ def prepare_inputs(dest: str | os.PathLike, capture_dir: str | os.PathLike, inpu
     dest : folder to create (must not exist)
     capture_dir : the case (a capture: views/ and/or scan/, plant/ when it has ground truth)
     inputs : the method's ``inputs``
-    points_dir : for 'points' methods, the point stage's folder (points.ply, and depth/ of the mvs stage)
+    points_dir : for 'points' methods, the point stage's folder (points.ply, and depth/ of the mvs stage); None:
+        the coordinates of the capture's scan
     hint : a :class:`plantbench.hints.SpeciesHint` written as hint.json, or None
     oracle : give the whole capture, ground truth included (an oracle method)
 
@@ -121,21 +123,46 @@ def prepare_inputs(dest: str | os.PathLike, capture_dir: str | os.PathLike, inpu
     elif inputs == "scan":
         _copy_scan(capture / "scan", dest / "scan")
     if inputs == "points":
-        if points_dir is None:
-            raise InputError("a points method needs a point cloud: the mvs stage's or the scan's", path=capture)
-        src = Path(points_dir)
-        if not (src / "points.ply").is_file():
-            raise InputError("no points.ply", path=src)
         from plantbench.io.ply import read_points, write_points
 
-        pts, _ = read_points(src / "points.ply")  # coordinates only: the scan's labels are ground truth
+        cloud = capture / "scan" / "scan.ply" if points_dir is None else Path(points_dir) / "points.ply"
+        if not cloud.is_file():
+            raise InputError("a points method needs a point cloud: the mvs stage's points.ply or the capture's scan",
+                             path=cloud)
+        pts, _ = read_points(cloud)  # coordinates only: the scan's labels are ground truth
         write_points(dest / "points.ply", pts)
         if not oracle and (capture / "views" / "cameras.json").exists():
             _copy_views(capture / "views", dest / "views")
-        if (src / "depth").is_dir():  # the mvs stage's own depth maps (estimated, not the exact ones)
-            shutil.copytree(src / "depth", dest / "depth")
+        if points_dir is not None and (Path(points_dir) / "depth").is_dir():  # the mvs stage's own depth maps
+            shutil.copytree(Path(points_dir) / "depth", dest / "depth")
     if hint is not None:
         from plantbench.hints import write_hint
 
         write_hint(dest, hint)
     return dest
+
+
+def run_isolated(method, capture_dir: str | os.PathLike, out_dir: str | os.PathLike, *, seed: int,
+                 species: str | None = None, options: dict | None = None,
+                 points_dir: str | os.PathLike | None = None) -> None:
+    """Run ``method`` on a fresh input folder (:func:`prepare_inputs`, with the published hint of ``species``) and
+    a fresh output folder, both in a temporary folder outside the cache, then move its outputs into ``out_dir``
+    (created; an entry of the same name is replaced). What the runner's method jobs and ``plantbench reconstruct``
+    both do."""
+    from plantbench.hints import load_hint
+
+    options = dict(options or {})
+    hint = load_hint(species) if species else None
+    with tempfile.TemporaryDirectory(prefix="plantbench-job-") as tmp:
+        inputs = prepare_inputs(Path(tmp) / "input", capture_dir, method.inputs, points_dir=points_dir, hint=hint,
+                                oracle=is_oracle(method, options))
+        result = Path(tmp) / "output"
+        result.mkdir()
+        method.reconstruct(inputs, result, seed=seed, species=species, **options)
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        for item in sorted(result.iterdir()):
+            target = out / item.name
+            if target.is_dir():
+                shutil.rmtree(target)
+            shutil.move(str(item), str(target))

@@ -24,7 +24,7 @@ from plantbench.report.tables import KEY_METRICS
 from plantbench.schemas import Strict, load_json
 
 __all__ = ["HEADLINE", "FLOORS", "MEAN", "BaselineEntry", "Baseline", "ToleranceEntry", "Tolerances", "read_results",
-           "cell_values", "compare", "make_baseline", "write_baseline", "load_baseline", "load_tolerances",
+           "read_run_meta", "cell_values", "compare", "make_baseline", "write_baseline", "load_baseline", "load_tolerances",
            "write_tolerances", "tolerances_path"]
 
 HEADLINE = tuple(m for m in KEY_METRICS if m != "runtime_s")
@@ -98,6 +98,16 @@ def read_results(run_dir: str | os.PathLike):
                 raise InputError(f"missing columns {sorted(missing)}", path=path)
             return table
     raise InputError("no results.parquet or results.csv (is this a run folder?)", path=run_dir)
+
+
+def read_run_meta(run_dir: str | os.PathLike) -> dict:
+    """A run folder's run.json (versions, git SHA, Dr.Jit target, oracles, dataset), or {} when it has none."""
+    import json
+
+    try:
+        return json.loads((Path(run_dir) / "run.json").read_text())
+    except (OSError, ValueError):
+        return {}
 
 
 def _direction(metric: str) -> bool | None:

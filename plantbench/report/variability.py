@@ -72,7 +72,7 @@ PERTURBATIONS = (
 
 def available_perturbations(names: list[str] | None = None) -> list[Perturbation]:
     """The perturbations this CPU can run (named ones only, when ``names``); the reference always first."""
-    from plantbench.backend import _host_has
+    from plantbench.backend import host_has
     from plantbench.errors import InputError
 
     known = {p.name: p for p in PERTURBATIONS}
@@ -81,7 +81,7 @@ def available_perturbations(names: list[str] | None = None) -> list[Perturbation
         if unknown:
             raise InputError(f"unknown perturbation(s) {unknown}; known: {sorted(known)}")
     chosen = [p for p in PERTURBATIONS if names is None or p.name in names or p.name == "reference"]
-    return [p for p in chosen if not p.requires or _host_has(p.requires)]
+    return [p for p in chosen if not p.requires or host_has(p.requires)]
 
 
 @contextlib.contextmanager

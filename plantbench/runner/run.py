@@ -48,7 +48,7 @@ def _slug(text: str) -> str:
     return safe if len(safe) <= 60 else safe[:40] + "-" + content_hash(text)[:8]
 
 
-def _git_sha() -> str | None:
+def git_sha() -> str | None:
     try:
         out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=project_root(), capture_output=True, text=True,
                              timeout=10)
@@ -84,7 +84,7 @@ def run_metadata(suite: Suite, methods: list[str]) -> dict:
     config = suite.model_dump(mode="json")
     return {
         "plantbench_version": __version__,
-        "git_sha": _git_sha(),
+        "git_sha": git_sha(),
         "suite": suite.name,
         "methods": methods,
         "config": config,
@@ -108,33 +108,21 @@ def run_suite(
     scheduler: str | None = None,
     client=None,
     progress: Callable[[int, int, dict], None] | None = None,
-    dataset: str | os.PathLike | None = None,
+    dataset: str | os.PathLike | tuple | None = None,
 ) -> RunResult:
     """Run ``suite`` into ``out/<suite>/`` with the shared cache ``out/cache``; return the results table.
 
-    ``dataset``: a frozen dataset of the suite (:mod:`plantbench.dataset`), verified file by file before any work;
-    its captures replace generating and capturing, and run.json records its manifest's sha256."""
+    ``dataset``: a frozen dataset of the suite (:mod:`plantbench.dataset`), verified file by file before any work
+    (or the (folder, manifest) that :func:`plantbench.dataset.open_dataset` returned); its captures replace
+    generating and capturing, and run.json records its manifest's sha256."""
     import pandas as pd
 
     t0 = time.perf_counter()
     frozen = None
     if dataset is not None:
-        from plantbench.dataset import manifest_sha256, verify_dataset
+        from plantbench.dataset import open_dataset
 
-        manifest = verify_dataset(dataset)
-        if manifest.suite != suite.name:
-            from plantbench.errors import InputError
-
-            raise InputError(f"the dataset holds suite {manifest.suite!r}, not {suite.name!r}",
-                             path=Path(dataset) / "manifest.json")
-        packed = manifest.suite_config
-        for part in ("capture", "cases", "root_seed"):
-            if packed.get(part) != suite.model_dump(mode="json").get(part):
-                from plantbench.errors import InputError
-
-                raise InputError(f"the suite's {part} differ from the dataset's (the captures are frozen: run the "
-                                 "suite as packed, or pack it again)", path=Path(dataset) / "manifest.json")
-        frozen = (Path(dataset), manifest)
+        frozen = dataset if isinstance(dataset, tuple) else open_dataset(dataset, suite)
     plan = make_plan(suite, methods, dataset=frozen)  # validates species and methods before any work
     method_names = methods or list(suite.methods)
     out = Path(out)
@@ -145,6 +133,8 @@ def run_suite(
     meta["started"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
     meta["oracles"] = oracle_methods(suite, method_names)
     if frozen is not None:
+        from plantbench.dataset import manifest_sha256
+
         meta["dataset"] = {"path": str(frozen[0].resolve()), "manifest_sha256": manifest_sha256(frozen[0]),
                            "git_sha": frozen[1].git_sha, "llvm_target": frozen[1].llvm_target}
     records, stats = execute_plan(plan, cache, workers=workers, executor=executor, scheduler=scheduler,

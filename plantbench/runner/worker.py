@@ -93,27 +93,14 @@ def run_job(cache: Path, kind: str, key: str, folder: Path, params: dict) -> dic
 
 
 def _method(cache: Path, folder: Path, params: dict) -> None:
-    """Run a method on a fresh input folder outside the cache that holds only what its ``inputs`` allow
-    (:func:`plantbench.methods.inputs.prepare_inputs`), writing into a fresh output folder beside it; the outputs
-    then move into ``folder``. Nothing of plant/ or the cache is reachable from either by a relative path."""
-    import shutil
-    import tempfile
-
-    from plantbench.hints import load_hint
+    """Run a method on an input folder that holds only what its ``inputs`` allow, outside the cache
+    (:func:`plantbench.methods.inputs.run_isolated`); its outputs end in ``folder``."""
     from plantbench.methods.api import method_from_spec
-    from plantbench.methods.inputs import is_oracle, prepare_inputs
+    from plantbench.methods.inputs import run_isolated
 
-    method = method_from_spec(params["method"])
-    hint = load_hint(params["species"]) if params.get("species") else None
     points = job_folder(cache, "points", params["points"]) if params["points"] else None
-    with tempfile.TemporaryDirectory(prefix="plantbench-job-") as tmp:
-        inputs = prepare_inputs(Path(tmp) / "input", job_folder(cache, "capture", params["case"]), method.inputs,
-                                points_dir=points, hint=hint, oracle=is_oracle(method, params["options"]))
-        out = Path(tmp) / "output"
-        out.mkdir()
-        method.reconstruct(inputs, out, seed=params["seed"], species=params["species"], **params["options"])
-        for item in sorted(out.iterdir()):
-            shutil.move(str(item), str(folder / item.name))
+    run_isolated(method_from_spec(params["method"]), job_folder(cache, "capture", params["case"]), folder,
+                 seed=params["seed"], species=params["species"], options=params["options"], points_dir=points)
 
 
 def _points(cache: Path, folder: Path, params: dict) -> None:
