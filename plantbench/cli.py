@@ -258,6 +258,67 @@ def gate(
 
 
 @app.command()
+def calibrate(
+    suite: Annotated[str, typer.Option(help="Suite name or path to a suite TOML.")] = "multiview",
+    workers: Annotated[int, typer.Option(help="Parallel workers.")] = 1,
+    out: Annotated[Path, typer.Option(help="Run folder (the cache is shared with `plantbench run`).")] = Path("runs"),
+    reports: Annotated[Path, typer.Option(help="Where README.md, ladder.csv, verdicts.csv and the figure go.")] = Path(
+        "reports/calibration"),
+    seed: Annotated[Optional[int], typer.Option(  # noqa: UP045
+        help="Replace every case's seed (plants that are not in the suite).")] = None,
+    species: Annotated[Optional[str], typer.Option(  # noqa: UP045
+        help="Comma-separated species: only these cases of the suite.")] = None,
+) -> None:
+    """Score a ladder of controlled reconstructions of each plant (ground truth pruned, jittered, scaled, leaves
+    moved; the no-data prior; another species) with every metric, and say which metrics order them by fidelity."""
+    import time
+
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from plantbench.io.atomic import atomic_write
+    from plantbench.metrics.info import HEADLINE_FIDELITY
+    from plantbench.report.calibration import calibration_markdown, ladder_figure, run_calibration, verdicts
+    from plantbench.report.gate import read_run_meta
+    from plantbench.suites import load_suite
+
+    spec = load_suite(suite)
+    chosen = [s.strip() for s in species.split(",")] if species else None
+    console = _console()
+    t0 = time.perf_counter()
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=console) as bar:
+        task = bar.add_task("calibration", total=None)
+
+        def progress(done: int, total: int, rec: dict) -> None:
+            bar.update(task, completed=done, total=total, description=f"calibration: {rec['kind']} {rec['status']}")
+
+        result = run_calibration(spec, out, workers=workers, progress=progress, seed=seed, species=chosen)
+    table = result.table
+    verdict = verdicts(table)
+    reports.mkdir(parents=True, exist_ok=True)
+    with atomic_write(reports / "ladder.csv", "w") as fh:
+        table.to_csv(fh, index=False)
+    with atomic_write(reports / "verdicts.csv", "w") as fh:
+        verdict.to_csv(fh, index=False)
+    figure = ladder_figure(table, list(HEADLINE_FIDELITY) + ["stava.S_T", "leaves.f1", "skeleton.f1@1.0"],
+                           reports / "ladder.png")
+    meta = read_run_meta(result.run_dir)
+    header = (f"Made by `plantbench calibrate --suite {spec.name}"
+              + (f" --seed {seed}" if seed is not None else "") + (f" --species {species}" if species else "")
+              + f"` (code {meta.get('git_sha')}, {table['case'].nunique()} plants, "
+              f"{time.perf_counter() - t0:.0f} s). ladder.csv holds every rung's every metric; verdicts.csv the "
+              f"verdicts; ![ladder]({figure.name}) the headline metrics per rung.")
+    with atomic_write(reports / "README.md", "w") as fh:
+        fh.write(calibration_markdown(table, verdict, header=header, headline=HEADLINE_FIDELITY))
+    good = verdict[verdict["verdict"] == "discriminates"]
+    console.print(f"{reports}/README.md: {len(good)} of {len(verdict)} metrics discriminate "
+                  f"({table['case'].nunique()} plants, {time.perf_counter() - t0:.0f} s)")
+    failed = [m for m in HEADLINE_FIDELITY if m not in set(good["metric"])]
+    if failed:
+        console.print(f"[red]headline metrics that do not discriminate here: {', '.join(failed)}[/red]")
+
+
+@app.command()
 def variability(
     suite: Annotated[str, typer.Option(help="Suite name or path to a suite TOML.")] = "quick",
     out: Annotated[Path, typer.Option(help="Folder of the study's runs (one run folder and cache per run).")] = Path(

@@ -196,6 +196,23 @@ class Plant:
         ids = check_shape("leaf face ids", self.leaf_mesh_ids, (len(self.leaf_mesh.faces),), "i")
         object.__setattr__(self, "leaf_mesh_ids", ids)
 
+    def scaled(self, factor: float) -> Plant:
+        """The plant scaled by ``factor`` (> 0) about the origin: positions, radii, meshes and leaves (their frames
+        stay rigid; blade length and width scale, the Bezier parameters are in leaf lengths)."""
+        if not factor > 0:
+            raise InputError(f"scale factor must be > 0, got {factor}")
+        f = float(factor)
+        sk = self.skeleton
+        leaves = []
+        for leaf in self.leaves:
+            t = np.array(leaf.transform, float)
+            t[:3, 3] *= f
+            leaves.append(Leaf(leaf.id, leaf.node, t, dict(leaf.params), leaf.length * f, leaf.width * f))
+        return Plant(Skeleton(sk.positions * f, sk.radii * f, sk.parents, sk.order),
+                     TriMesh(self.branch_mesh.vertices * f, self.branch_mesh.faces),
+                     TriMesh(self.leaf_mesh.vertices * f, self.leaf_mesh.faces), self.leaf_mesh_ids, leaves,
+                     dict(self.meta))
+
     @property
     def height(self) -> float:
         parts = [self.skeleton.positions[:, 2], self.branch_mesh.vertices[:, 2], self.leaf_mesh.vertices[:, 2]]

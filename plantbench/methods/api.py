@@ -76,9 +76,14 @@ class ExternalCommand:
 
 
 def method_from_spec(spec: str):
-    """A registered method name, or ``cmd:COMMAND`` for an external command."""
+    """A registered method name, ``cmd:COMMAND`` for an external command, or ``ladder:RUNG`` for a rung of the
+    calibration ladder (:mod:`plantbench.methods.ladder`)."""
     if spec.startswith("cmd:"):
         return ExternalCommand(spec[4:])
+    if spec.startswith("ladder:"):
+        from plantbench.methods.ladder import ladder_method
+
+        return ladder_method(spec)
     from plantbench.registry import methods
 
     return methods.get(spec)

@@ -16,7 +16,7 @@ The runner and ``plantbench reconstruct`` copy into a new temporary folder, outs
 and the species hint as ``hint.json`` when the run gives one (:mod:`plantbench.hints`). Files are copied, not
 linked, so no path inside the folder leads back to the cache or to ``plant/``. A method that declares itself an
 oracle (``oracle = True``, or ``is_oracle(options)`` for one whose options make it one) gets the whole capture,
-ground truth included.
+ground truth included (unless it declares ``reads_ground_truth = False``).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from pathlib import Path
 
 from plantbench.errors import InputError
 
-__all__ = ["prepare_inputs", "run_isolated", "is_oracle", "VIEW_ENTRIES", "GROUND_TRUTH"]
+__all__ = ["prepare_inputs", "run_isolated", "is_oracle", "reads_ground_truth", "VIEW_ENTRIES", "GROUND_TRUTH"]
 
 VIEW_ENTRIES = ("images", "cameras.json", "transforms.json")
 """What a method reading views gets of ``views/`` as it is (besides colmap/ and capture.json, filtered)."""
@@ -49,6 +49,12 @@ def is_oracle(method, options: dict | None = None) -> bool:
     if callable(check):
         return bool(check(dict(options or {})))
     return bool(getattr(method, "oracle", False))
+
+
+def reads_ground_truth(method, options: dict | None = None) -> bool:
+    """Whether ``method``'s input folder holds the whole capture, ground truth included: an oracle, unless it
+    declares ``reads_ground_truth = False`` (the no-data prior: an oracle of the generative model, not of the case)."""
+    return is_oracle(method, options) and bool(getattr(method, "reads_ground_truth", True))
 
 
 def _copy_views(src: Path, dest: Path) -> None:
@@ -155,7 +161,7 @@ def run_isolated(method, capture_dir: str | os.PathLike, out_dir: str | os.PathL
     hint = load_hint(species) if species else None
     with tempfile.TemporaryDirectory(prefix="plantbench-job-") as tmp:
         inputs = prepare_inputs(Path(tmp) / "input", capture_dir, method.inputs, points_dir=points_dir, hint=hint,
-                                oracle=is_oracle(method, options))
+                                oracle=reads_ground_truth(method, options))
         result = Path(tmp) / "output"
         result.mkdir()
         method.reconstruct(inputs, result, seed=seed, species=species, **options)

@@ -9,6 +9,8 @@ None, never NaN; :func:`evaluate_detailed` also returns why:
 * no ``scan/scan.ply`` and no ``plant/``: mesh_to_scan (with ``plant/`` but no scan the ground truth is a dense
   area-uniform sample of the plant surface);
 * no ``views/cameras.json`` or instance maps: reprojection;
+* no ``scan/scan.ply`` and no observed cloud given: the GT-free skeleton support (``support.*``, the share of the
+  skeleton's length near an observed point, tolerance a fraction of the observed cloud's height above z = 0);
 * no ``leaves.json`` in the output: leaf metrics; no ``points.ply``: points metrics; no ``skeleton.ply``: Stava and
   skeleton metrics;
 * a ground truth without leaves: the foliage part of the point and surface metrics; a trunk shorter than breast
@@ -54,9 +56,10 @@ class EvaluateOptions:
 
 
 def evaluate(case_dir: str | os.PathLike, recon_dir: str | os.PathLike, *,
-             options: EvaluateOptions = EvaluateOptions()) -> dict[str, float | None]:
+             options: EvaluateOptions = EvaluateOptions(), observed: np.ndarray | None = None
+             ) -> dict[str, float | None]:
     """All metrics of one reconstruction: metric name -> value (None where it cannot apply)."""
-    return evaluate_detailed(case_dir, recon_dir, options=options)[0]
+    return evaluate_detailed(case_dir, recon_dir, options=options, observed=observed)[0]
 
 
 def _set(values: dict, reasons: dict, prefix: str, result: dict | None, reason: str | None = None) -> None:
@@ -99,16 +102,20 @@ def _read_masks(case: Path, cameras: list, images: list[str]) -> list[np.ndarray
 
 
 def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike, *,
-                      options: EvaluateOptions = EvaluateOptions()
+                      options: EvaluateOptions = EvaluateOptions(), observed: np.ndarray | None = None
                       ) -> tuple[dict[str, float | None], dict[str, str]]:
-    """Like :func:`evaluate`, plus metric name -> reason for every None value."""
+    """Like :func:`evaluate`, plus metric name -> reason for every None value.
+
+    ``observed`` : (m, 3) float, the points the capture gave for the GT-free skeleton support; None: the case's
+    ``scan/scan.ply``."""
     from plantbench.cameras import read_cameras
     from plantbench.io.plantio import read_plant, read_reconstruction
     from plantbench.io.ply import read_points
     from plantbench.metrics import leaves as lv
     from plantbench.metrics.points import cloud_metrics
     from plantbench.metrics.reprojection import render_silhouettes, reprojection_error
-    from plantbench.metrics.skeleton import skeleton_attributes, skeleton_prf
+    from plantbench.metrics.points import tau_label
+    from plantbench.metrics.skeleton import HEIGHT_FRACTIONS, skeleton_attributes, skeleton_prf, skeleton_support
     from plantbench.metrics.stava import stava_similarities
     from plantbench.metrics.surface import (
         distance_stats_cm,
@@ -141,7 +148,8 @@ def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike,
     if plant is None or recon.skeleton is None:
         _set(values, reasons, "skeleton", None, no_plant if plant is None else "no skeleton.ply in the output")
     else:
-        prf = skeleton_prf(plant.skeleton, recon.skeleton, step=options.skeleton_step)
+        prf = skeleton_prf(plant.skeleton, recon.skeleton, step=options.skeleton_step,
+                           height=plant.height if plant.height > 0 else None)
         a_gt = skeleton_attributes(plant.skeleton, breast_height=options.breast_height)
         a = skeleton_attributes(recon.skeleton, breast_height=options.breast_height)
 
@@ -159,6 +167,21 @@ def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike,
             "dbh_cm": None if a["dbh_m"] is None else a["dbh_m"] * 100, "dbh_error_cm": dbh_err,
         }, "trunk below breast height, or no branch")
 
+    # ---- GT-free support of the skeleton by the observed points
+    scan_path = case / "scan" / "scan.ply"
+    scan_pts = read_points(scan_path)[0] if scan_path.is_file() else None
+    if observed is None:
+        observed = scan_pts
+    obs_height = float(np.quantile(observed[:, 2], 0.999)) if observed is not None and len(observed) else 0.0
+    if recon.skeleton is None or observed is None or obs_height <= 0:
+        _set(values, reasons, "support", None, "no skeleton.ply in the output" if recon.skeleton is None
+             else "no scan/scan.ply or observed cloud above the ground")
+    else:
+        _set(values, reasons, "support", {
+            f"skeleton@{tau_label(f)}": skeleton_support(recon.skeleton, observed, tolerance=f * obs_height,
+                                                         step=options.skeleton_step)
+            for f in HEIGHT_FRACTIONS}, "the skeleton has no length")
+
     # ---- ground-truth surface sample (labels 0 wood, 1 foliage)
     gt_pts = gt_lab = None
     if plant is not None:
@@ -175,8 +198,7 @@ def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike,
             gt_lab = np.zeros(len(gt_pts), np.int64)
 
     # ---- mesh to scan / surface
-    scan_path = case / "scan" / "scan.ply"
-    scan = read_points(scan_path)[0] if scan_path.is_file() else gt_pts
+    scan = scan_pts if scan_pts is not None else gt_pts
     if mesh is None:
         _set(values, reasons, "mesh_to_scan", None, "no mesh.ply in the output")
     elif scan is None or len(scan) == 0:
@@ -212,9 +234,13 @@ def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike,
         counts = lv.leaf_count_metrics(len(plant.leaves), len(recon.leaves))
         lengths = [leaf.length for leaf in plant.leaves]
         radius = 0.5 * float(np.median(lengths)) if lengths else 1.0
-        det = lv.leaf_detection(np.array([leaf.centroid for leaf in plant.leaves]).reshape(-1, 3),
-                                np.array([leaf.centroid for leaf in recon.leaves]).reshape(-1, 3), radius=radius)
+        gt_c = np.array([leaf.centroid for leaf in plant.leaves]).reshape(-1, 3)
+        pred_c = np.array([leaf.centroid for leaf in recon.leaves]).reshape(-1, 3)
+        det = lv.leaf_detection(gt_c, pred_c, radius=radius)
         det.pop("matched")
+        spacing = lv.median_spacing(gt_c) if len(gt_c) > 1 else (plant.leaves[0].length if len(gt_c) else 1.0)
+        strict = lv.leaf_detection(gt_c, pred_c, radius=lv.SPACING_FRACTION * spacing)
+        det.update({f"strict_{k}": strict[k] for k in ("precision", "recall", "f1")})
         _set(values, reasons, "leaves", {**counts, **det}, "no ground-truth leaf")
 
     # ---- points and surface

@@ -9,9 +9,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from plantbench.metrics.points import TAU_FRACTIONS, tau_label
-from plantbench.metrics.skeleton import THRESHOLDS
+from plantbench.metrics.skeleton import HEIGHT_FRACTIONS, THRESHOLDS
 
-__all__ = ["MetricInfo", "METRICS"]
+__all__ = ["MetricInfo", "METRICS", "HEADLINE_FIDELITY", "HEADLINE_GT_FREE"]
 
 
 @dataclass(frozen=True)
@@ -65,6 +65,9 @@ _add("leaves.accuracy", "", True, "leaf-count accuracy max(0, 1 - |DiC| / N_gt)"
 _add("leaves.precision", "", True, "leaf detection precision (Hungarian centroid matching, half median leaf length)")
 _add("leaves.recall", "", True, "leaf detection recall")
 _add("leaves.f1", "", True, "leaf detection F1")
+for _k in ("precision", "recall", "f1"):
+    _add(f"leaves.strict_{_k}", "", True, f"strict leaf detection {_k} (centroids within half the median GT leaf "
+                                           "spacing)")
 
 _add("points.count", "", None, "number of points in the method's points.ply (seed 000 |P|)")
 for _src, _what in (("points", "the method's points.ply"), ("surface", "an area-uniform sample of mesh.ply")):
@@ -83,6 +86,13 @@ for _t in THRESHOLDS:
     for _k in ("precision", "recall", "f1"):
         _add(f"skeleton.{_k}@{_t:.1f}", "", True,
              f"skeleton sample {_k} within {_t:g} x local ground-truth radius (Smart-Tree protocol)")
+for _f in HEIGHT_FRACTIONS:
+    for _k in ("precision", "recall", "f1"):
+        _add(f"skeleton.v{_k}@{tau_label(_f)}", "", True,
+             f"volume-weighted skeleton {_k} within {tau_label(_f)} of plant height (wood pi r^2 x length)")
+for _f in HEIGHT_FRACTIONS:
+    _add(f"support.skeleton@{tau_label(_f)}", "", True,
+         f"GT-free: share of skeleton length within {tau_label(_f)} of the observed height of an observed point")
 _add("skeleton.branch_count", "", None, "reconstructed branch count (unbranched chains; seed 000 |B|)")
 _add("skeleton.branch_count_rel_error", "", False, "|branch count - GT| / GT")
 _add("skeleton.total_length_m", "m", None, "reconstructed total branch length")
@@ -92,3 +102,9 @@ _add("skeleton.height_m", "m", None, "reconstructed skeleton height (seed 000 H)
 _add("skeleton.height_error_m", "m", False, "|height - GT height|")
 _add("skeleton.dbh_cm", "cm", None, "reconstructed diameter at breast height (1.3 m)")
 _add("skeleton.dbh_error_cm", "cm", False, "|DBH - GT DBH|")
+
+HEADLINE_FIDELITY = ("skeleton.vf1@1%", "surface.wood.fscore@0.5%", "leaves.strict_f1")
+"""The headline fidelity metrics: one skeleton, one surface and one leaf metric that ``plantbench calibrate`` found
+to tell a faithful reconstruction from a plausible one (reports/calibration/)."""
+HEADLINE_GT_FREE = ("support.skeleton@1%",)
+"""The headline metric that needs no ground truth (real captures)."""

@@ -1,0 +1,194 @@
+"""The calibration ladder: controlled reconstructions built from a case's ground truth (DESIGN.md section 7).
+
+Each rung is an oracle method (``ladder:NAME``, resolved by :func:`plantbench.methods.api.method_from_spec`) whose
+output is the ground truth degraded in one known way, so that ``plantbench calibrate`` can run the rungs through
+the runner like any method and ask of every metric whether it orders them as their fidelity does:
+
+- ``gt``: the ground truth itself;
+- ``orders<=K`` (K = 3, 2, 1): the skeleton pruned to branch orders <= K (the trunk is order 0), the leaves of the
+  kept nodes kept, the wood mesh rebuilt from the pruned skeleton;
+- ``jitter-F%`` (F = 0.25, 0.5, 1, 2): every node moved by an isotropic Gaussian offset whose RMS length is F % of
+  the plant height, the wood mesh rebuilt from the moved skeleton, each leaf moved with its node;
+- ``scale-S`` (S = 1.05, 1.1, 1.25): the plant scaled by S about its root;
+- ``leaves-F%`` (F = 10, 25, 50): every leaf moved by F % of its own length in a random direction, the wood untouched;
+- ``prior-a``, ``prior-b``: the no-data prior (:func:`plantbench.methods.prior.grow_prior`) with seeds 0 and 1,
+  scaled to the ground truth's height (seed 1 is the suite's own ``prior`` row when the case seed is 1);
+- ``other-species``: the next species of the same family in the library (by name, cyclic), grown as the prior
+  grows it, scaled to the same height.
+
+Random draws come from ``rng(seed, "ladder", NAME)``: a rung is the same bytes for the same seed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from plantbench.errors import InputError
+from plantbench.plant import Leaf, Plant, Skeleton, TriMesh
+
+__all__ = ["RUNGS", "Rung", "LadderMethod", "ladder_method", "build_rung", "prune", "jitter", "move_leaves",
+           "other_species"]
+
+PREFIX = "ladder:"
+
+
+def _rebuild_wood(skeleton: Skeleton) -> TriMesh:
+    from plantbench.geometry.tubes import main_child_mask, tube_mesh
+
+    main = main_child_mask(skeleton.parents, skeleton.radii)
+    return tube_mesh(skeleton.positions, skeleton.parents, skeleton.radii, main)
+
+
+def _leaf_vertex_ids(plant: Plant) -> np.ndarray:
+    """(v,) leaf id of each leaf-mesh vertex (-1 for a vertex no face uses)."""
+    ids = np.full(len(plant.leaf_mesh.vertices), -1, np.int64)
+    ids[plant.leaf_mesh.faces.ravel()] = np.repeat(plant.leaf_mesh_ids, 3)
+    return ids
+
+
+def _moved_leaves(plant: Plant, offsets: np.ndarray) -> tuple[list[Leaf], TriMesh]:
+    """Leaves (and their mesh) each translated by ``offsets[k]`` (one row per leaf, in ``plant.leaves`` order)."""
+    by_id = {leaf.id: k for k, leaf in enumerate(plant.leaves)}
+    leaves = []
+    for leaf, off in zip(plant.leaves, offsets):
+        t = np.array(leaf.transform, float)
+        t[:3, 3] += off
+        leaves.append(Leaf(leaf.id, leaf.node, t, dict(leaf.params), leaf.length, leaf.width))
+    vid = _leaf_vertex_ids(plant)
+    row = np.array([by_id.get(int(i), -1) for i in vid], np.int64) if len(vid) else np.zeros(0, np.int64)
+    verts = plant.leaf_mesh.vertices.copy()
+    has = row >= 0
+    verts[has] += offsets[row[has]]
+    return leaves, TriMesh(verts, plant.leaf_mesh.faces)
+
+
+def prune(plant: Plant, max_order: int) -> Plant:
+    """The plant with only the nodes of branch order <= ``max_order`` (and their leaves); wood mesh rebuilt."""
+    sk = plant.skeleton
+    keep = sk.order <= max_order
+    if len(sk) and not keep[sk.parents[keep & (sk.parents >= 0)]].all():
+        raise InputError("prune: a kept node's parent has a higher branch order (orders must not fall along a path)")
+    new_index = np.cumsum(keep) - 1
+    parents = np.where(sk.parents[keep] >= 0, new_index[np.maximum(sk.parents[keep], 0)], -1)
+    skeleton = Skeleton(sk.positions[keep], sk.radii[keep], parents, sk.order[keep])
+    kept_leaves = [leaf for leaf in plant.leaves if 0 <= leaf.node < len(sk) and keep[leaf.node]]
+    kept_ids = np.array([leaf.id for leaf in kept_leaves], np.int64)
+    face_keep = np.isin(plant.leaf_mesh_ids, kept_ids)
+    leaf_mesh = TriMesh(plant.leaf_mesh.vertices, plant.leaf_mesh.faces[face_keep])
+    leaves = [Leaf(leaf.id, int(new_index[leaf.node]), leaf.transform, leaf.params, leaf.length, leaf.width)
+              for leaf in kept_leaves]
+    return Plant(skeleton, _rebuild_wood(skeleton), leaf_mesh, plant.leaf_mesh_ids[face_keep], leaves,
+                 dict(plant.meta))
+
+
+def jitter(plant: Plant, fraction: float, rng: np.random.Generator) -> Plant:
+    """Every node moved by N(0, s^2 I) with s = fraction x height / sqrt(3) (RMS offset = fraction x height); the
+    wood mesh rebuilt, each leaf moved with its node (a leaf without a node stays)."""
+    sk = plant.skeleton
+    offsets = rng.normal(0.0, fraction * plant.height / np.sqrt(3.0), (len(sk), 3))
+    skeleton = Skeleton(sk.positions + offsets, sk.radii, sk.parents, sk.order)
+    leaf_off = np.array([offsets[leaf.node] if 0 <= leaf.node < len(sk) else np.zeros(3) for leaf in plant.leaves]
+                        ).reshape(-1, 3)
+    leaves, leaf_mesh = _moved_leaves(plant, leaf_off)
+    return Plant(skeleton, _rebuild_wood(skeleton), leaf_mesh, plant.leaf_mesh_ids, leaves, dict(plant.meta))
+
+
+def move_leaves(plant: Plant, fraction: float, rng: np.random.Generator) -> Plant:
+    """Every leaf moved by ``fraction`` x its length in a uniformly random direction; the wood untouched."""
+    d = rng.normal(size=(len(plant.leaves), 3))
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    lengths = np.array([leaf.length for leaf in plant.leaves]).reshape(-1, 1)
+    leaves, leaf_mesh = _moved_leaves(plant, d * fraction * lengths)
+    return Plant(plant.skeleton, plant.branch_mesh, leaf_mesh, plant.leaf_mesh_ids, leaves, dict(plant.meta))
+
+
+def other_species(species: str) -> str:
+    """The species after ``species`` among the library's species of the same family, by name (cyclic)."""
+    from plantbench.species import load_species, species as library
+
+    family = load_species(species).family
+    same = [n for n in library.names() if load_species(n).family == family]
+    if len(same) < 2:
+        raise InputError(f"ladder: no other species of family {family!r} in the library")
+    return same[(same.index(species) + 1) % len(same)]
+
+
+@dataclass(frozen=True)
+class Rung:
+    """One rung of the ladder: its name and how it degrades the ground truth."""
+
+    name: str
+    build: Callable[[Plant, str, np.random.Generator], Plant]
+    """(ground truth, species, rng) -> the rung's plant"""
+
+
+def _prior(seed: int):
+    def build(plant: Plant, species: str, rng: np.random.Generator) -> Plant:
+        from plantbench.methods.prior import grow_prior
+
+        return grow_prior(species, seed, plant.height)
+    return build
+
+
+def _other(plant: Plant, species: str, rng: np.random.Generator) -> Plant:
+    from plantbench.methods.prior import grow_prior
+
+    return grow_prior(other_species(species), 1, plant.height)
+
+
+RUNGS: dict[str, Rung] = {r.name: r for r in [
+    Rung("gt", lambda p, s, g: p),
+    *(Rung(f"orders<={k}", lambda p, s, g, k=k: prune(p, k)) for k in (3, 2, 1)),
+    *(Rung(f"jitter-{f:g}%", lambda p, s, g, f=f: jitter(p, f / 100, g)) for f in (0.25, 0.5, 1, 2)),
+    *(Rung(f"scale-{f:g}", lambda p, s, g, f=f: p.scaled(f)) for f in (1.05, 1.1, 1.25)),
+    *(Rung(f"leaves-{f:g}%", lambda p, s, g, f=f: move_leaves(p, f / 100, g)) for f in (10, 25, 50)),
+    Rung("prior-a", _prior(0)),
+    Rung("prior-b", _prior(1)),
+    Rung("other-species", _other),
+]}
+"""The rungs, best first within each kind."""
+
+
+def build_rung(name: str, plant: Plant, species: str, seed: int) -> Plant:
+    """The rung ``name`` of ``plant`` (of ``species``), random draws from ``rng(seed, "ladder", name)``."""
+    from plantbench.registry import did_you_mean
+    from plantbench.seeding import rng
+
+    if name not in RUNGS:
+        raise InputError(did_you_mean("calibration rung", name, list(RUNGS)))
+    return RUNGS[name].build(plant, species, rng(int(seed), "ladder", name))
+
+
+class LadderMethod:
+    """``ladder:NAME``: writes the rung NAME of the case's ground truth (an oracle: it reads ``plant/``)."""
+
+    inputs = "views"
+    oracle = True
+
+    def __init__(self, rung: str) -> None:
+        from plantbench.registry import did_you_mean
+
+        if rung not in RUNGS:
+            raise InputError(did_you_mean("calibration rung", rung, list(RUNGS)))
+        self.rung = rung
+        self.name = PREFIX + rung
+
+    def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None,
+                    **options) -> None:
+        from plantbench.io.plantio import read_plant, write_reconstruction
+
+        if options:
+            raise InputError(f"{self.name}: takes no options, got {', '.join(sorted(options))}")
+        plant, meta = read_plant(capture_dir)
+        out = build_rung(self.rung, plant, species or meta.species, seed)
+        write_reconstruction(out_dir, out.skeleton, mesh=TriMesh.concatenate([out.branch_mesh, out.leaf_mesh]),
+                             leaves=out.leaves)
+
+
+def ladder_method(spec: str) -> LadderMethod:
+    """The method of a ``ladder:NAME`` spec."""
+    return LadderMethod(spec[len(PREFIX):])

@@ -1,0 +1,85 @@
+"""The no-data prior: a tree of the hinted species that looks at nothing but the plant's height.
+
+It is the floor beside every method (DESIGN.md section 7): a method earns its row by beating it. It grows the hinted
+species from the species library (``scenes/species``, the generative model itself: an oracle of the model, marked
+as such in every table, though it reads no ground truth of the case) with the method seed, scales it to the
+height of the input cloud (its vertical extent above the ground plane z = 0, :func:`cloud_height`) and writes
+skeleton, mesh and leaves with the root at the origin. Without a species hint it refuses to run.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from plantbench.errors import InputError
+from plantbench.plant import Plant, TriMesh
+
+__all__ = ["SpeciesPrior", "grow_prior", "cloud_height", "HEIGHT_QUANTILE"]
+
+HEIGHT_QUANTILE = 0.999
+"""The input's height is this quantile of its points' z (above z = 0): a few stray points above the crown (mvs
+outliers, a bird in a scan) do not set it."""
+
+
+def cloud_height(points: np.ndarray) -> float:
+    """Height of a cloud (n, 3) above the ground plane z = 0: the :data:`HEIGHT_QUANTILE` quantile of z."""
+    from plantbench.plant import check_shape
+
+    pts = check_shape("points", points, (-1, 3), "f")
+    if not len(pts):
+        raise InputError("the input cloud is empty: no height to scale the prior to")
+    return float(np.quantile(pts[:, 2], HEIGHT_QUANTILE))
+
+
+def grow_prior(species: str, seed: int, height: float) -> Plant:
+    """The hinted species grown from the stream ``rng(seed, "method", "prior", species)`` (a stream no case draws)
+    at the size of a plant ``height`` metres tall, then scaled to exactly that height (root at the origin).
+
+    The generators' ``scale`` grows a smaller plant of the species (size ~ scale^(1/3), fewer branches and leaves of
+    the same size): the prior grows it once at full size (height H1) and, when ``height`` < H1, again at scale
+    (height / H1)^3 from the same stream, so a small plant gets a small plant's branch and leaf counts."""
+    from plantbench.generate import FAMILIES
+    from plantbench.seeding import rng
+    from plantbench.species import load_species
+
+    if not height > 0:
+        raise InputError(f"prior: the plant height must be > 0, got {height}")
+    spec = load_species(species)
+    grow = FAMILIES[spec.family].grow
+    plant = grow(spec, rng(int(seed), "method", "prior", species), scale=1.0)
+    if height < plant.height:
+        scale = max((height / plant.height) ** 3, 1e-3)
+        plant = grow(spec, rng(int(seed), "method", "prior", species), scale=scale)
+    return plant.scaled(height / plant.height)
+
+
+class SpeciesPrior:
+    """``prior``: the species grown with another seed, scaled to the input's height; reads nothing else."""
+
+    name = "prior"
+    inputs = "points"
+    oracle = True
+    """It reads the generator's species file (the generative model), which no other method may."""
+    reads_ground_truth = False
+    """Its input folder is a plain method's (points and hint): no ground truth of the case."""
+
+    def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None,
+                    **options) -> None:
+        from plantbench.hints import read_hint
+        from plantbench.io.plantio import write_reconstruction
+        from plantbench.io.ply import read_points
+
+        if options:
+            raise InputError(f"prior: takes no options, got {', '.join(sorted(options))}")
+        hint = read_hint(capture_dir)
+        if hint is None:
+            raise InputError("prior: no species hint (hint.json) in the input folder; the no-data prior grows the "
+                             "hinted species and cannot run without one", path=Path(capture_dir))
+        cloud = Path(capture_dir) / "points.ply"
+        if not cloud.is_file():
+            raise InputError("prior: no points.ply to take the plant's height from", path=cloud)
+        plant = grow_prior(hint.species, seed, cloud_height(read_points(cloud)[0]))
+        write_reconstruction(out_dir, plant.skeleton, mesh=TriMesh.concatenate([plant.branch_mesh, plant.leaf_mesh]),
+                             leaves=plant.leaves)

@@ -1,0 +1,213 @@
+"""``plantbench calibrate``: which metrics tell a faithful reconstruction from a plausible one (DESIGN.md section 7).
+
+The suite's plants are captured as usual; the rungs of the ladder (:mod:`plantbench.methods.ladder`: the ground
+truth pruned, jittered, scaled, with moved leaves; the no-data prior with two seeds; another species) run as oracle
+methods through the runner and are scored by every metric. Per metric and plant, the verdict asks whether the metric
+orders the rungs as their fidelity does:
+
+* ``gt`` better than ``orders<=2``, and ``orders<=2`` better than both prior rungs;
+* ``jitter-0.5%`` better than both prior rungs;
+* jitter monotone: gt, jitter 0.25, 0.5, 1, 2 % never better than the rung before, and 2 % worse than gt.
+
+"Better" follows the metric's direction (:class:`plantbench.metrics.info.MetricInfo`); a missing value fails. A metric
+*discriminates* when every plant but at most :data:`ALLOWED_FAILURES` per 10 passes (>= 9 of 10). Descriptive metrics
+(no direction) have no verdict.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["LADDER", "calibration_suite", "run_calibration", "verdicts", "ladder_means", "calibration_markdown",
+           "ladder_figure", "ALLOWED_FAILURES"]
+
+LADDER = ("gt", "orders<=3", "orders<=2", "orders<=1", "jitter-0.25%", "jitter-0.5%", "jitter-1%", "jitter-2%",
+          "scale-1.05", "scale-1.1", "scale-1.25", "leaves-10%", "leaves-25%", "leaves-50%", "prior-a", "prior-b",
+          "other-species")
+"""Rung names in the order of the tables."""
+JITTER = ("gt", "jitter-0.25%", "jitter-0.5%", "jitter-1%", "jitter-2%")
+PRIORS = ("prior-a", "prior-b")
+ALLOWED_FAILURES = 0.1
+"""Share of plants on which a discriminating metric may misorder the rungs (1 of 10)."""
+
+
+def calibration_suite(suite, *, seed: int | None = None, species: list[str] | None = None):
+    """``suite`` renamed '<name>-calibration' (or '<name>-calibration-seed<N>') with the ladder as its methods;
+    ``seed`` replaces every case's seeds (plants not in the suite), ``species`` keeps only those cases."""
+    from plantbench.errors import InputError
+    from plantbench.methods.ladder import PREFIX
+
+    cases = [c for c in suite.cases if species is None or c.species in species]
+    if not cases:
+        raise InputError(f"calibrate: none of {species} is a case of suite {suite.name}")
+    if seed is not None:
+        cases = [c.model_copy(update={"seeds": [int(seed)]}) for c in cases]
+    name = f"{suite.name}-calibration" + (f"-seed{seed}" if seed is not None else "")
+    return suite.model_copy(update={"name": name, "cases": cases, "methods": [PREFIX + r for r in LADDER],
+                                    "method_options": {}, "sweep": None})
+
+
+def run_calibration(suite, out: str | os.PathLike, *, workers: int = 1, progress=None,
+                    seed: int | None = None, species: list[str] | None = None):
+    """Run the ladder on the suite's plants (shared cache ``out/cache``); returns the runner's RunResult."""
+    from plantbench.runner import run_suite
+
+    spec = calibration_suite(suite, seed=seed, species=species)
+    return run_suite(spec, Path(out), workers=workers, progress=progress)
+
+
+def _rung(method: str) -> str:
+    return method.split(":", 1)[1] if ":" in method else method
+
+
+def _pivot(table):
+    """case x rung values per metric: DataFrame indexed (metric, case), columns the rungs."""
+    t = table[table["status"] == "ok"].copy()
+    t["rung"] = t["method"].map(_rung)
+    return t.pivot_table(index=["metric", "case"], columns="rung", values="value", aggfunc="first")
+
+
+def _better(a: float, b: float, higher: bool) -> bool:
+    if not (math.isfinite(a) and math.isfinite(b)):
+        return False
+    return a > b if higher else a < b
+
+
+def _not_better(a: float, b: float, higher: bool) -> bool:
+    """a is not better than b (ties allowed)."""
+    if not (math.isfinite(a) and math.isfinite(b)):
+        return False
+    return a <= b if higher else a >= b
+
+
+def plant_checks(row: dict[str, float], higher: bool) -> dict[str, bool]:
+    """The checks of one plant: rung -> value (NaN when missing), the metric's direction."""
+    v = {r: float(row.get(r, float("nan"))) for r in LADDER}
+    best_prior = max(v[p] for p in PRIORS) if higher else min(v[p] for p in PRIORS)
+    if any(not math.isfinite(v[p]) for p in PRIORS):
+        best_prior = float("nan")
+    monotone = all(_not_better(v[b], v[a], higher) for a, b in zip(JITTER, JITTER[1:])) and \
+        _better(v["gt"], v["jitter-2%"], higher)
+    return {
+        "gt>orders<=2": _better(v["gt"], v["orders<=2"], higher),
+        "orders<=2>prior": _better(v["orders<=2"], best_prior, higher),
+        "jitter-0.5%>prior": _better(v["jitter-0.5%"], best_prior, higher),
+        "jitter monotone": monotone,
+    }
+
+
+def verdicts(table):
+    """Per metric with a direction: plants passing each check, plants passing all, and the verdict.
+
+    Returns a DataFrame: metric, higher_is_better, plants, one column per check (plants passing it), passed
+    (plants passing every check), verdict ('discriminates' or 'does not discriminate')."""
+    import pandas as pd
+
+    from plantbench.report.tables import metric_info
+
+    piv = _pivot(table)
+    rows = []
+    for metric, grp in piv.groupby(level=0, sort=True):
+        info = metric_info(metric)
+        if info is None or info.higher_is_better is None:
+            continue
+        checks = [plant_checks(r.to_dict(), info.higher_is_better) for _, r in grp.iterrows()]
+        n = len(checks)
+        counts = {k: sum(c[k] for c in checks) for k in checks[0]} if checks else {}
+        passed = sum(all(c.values()) for c in checks)
+        ok = n > 0 and passed >= n - math.floor(ALLOWED_FAILURES * n + 1e-9)
+        rows.append({"metric": metric, "higher_is_better": info.higher_is_better, "plants": n, **counts,
+                     "passed": passed, "verdict": "discriminates" if ok else "does not discriminate"})
+    return pd.DataFrame(rows)
+
+
+def ladder_means(table, metrics: list[str]):
+    """Mean over plants of each rung (columns) for ``metrics`` (rows), rungs in :data:`LADDER` order."""
+    piv = _pivot(table)
+    means = piv.groupby(level=0).mean()
+    return means.loc[[m for m in metrics if m in means.index], [r for r in LADDER if r in means.columns]]
+
+
+def _fmt(v: float) -> str:
+    if not np.isfinite(v):
+        return "-"
+    return f"{v:.3f}" if abs(v) < 100 else f"{v:.0f}"
+
+
+def calibration_markdown(table, verdict, *, header: str = "", headline: tuple[str, ...] = ()) -> str:
+    """The README of reports/calibration: the verdict table (every metric), the ladder's means for the key metrics."""
+    n = int(verdict["plants"].max()) if len(verdict) else 0
+    lines = ["# Metric calibration", "", header, "",
+             "Each plant of the suite is reconstructed by controlled degradations of its ground truth "
+             "(`plantbench.methods.ladder`), scored by every metric. A metric **discriminates** when on at least "
+             f"{n - math.floor(ALLOWED_FAILURES * n + 1e-9)} of {n} plants it ranks gt above the skeleton pruned to "
+             "branch orders <= 2, that above both no-data priors (the species grown with seeds 0 and 1, scaled to "
+             "the plant's height), the ground truth with every node jittered by 0.5 % of the height above both "
+             "priors, and the jitter rungs 0.25-2 % in order.", ""]
+    if headline:
+        lines += ["Headline fidelity metrics (`plantbench metrics --headline`): "
+                  + ", ".join(f"`{m}`" for m in headline) + ".", ""]
+    key = list(headline) + [m for m in ("stava.S_T", "mesh_to_surface.D_cm", "leaves.accuracy", "leaves.f1",
+                                         "skeleton.f1@1.0", "surface.all.fscore@2%", "reprojection.iou",
+                                         "support.skeleton@1%") if m not in headline]
+    means = ladder_means(table, key)
+    lines += ["## The ladder (mean over plants)", "", "Rows: metrics; columns: rungs.", "",
+              "| metric | " + " | ".join(means.columns) + " |", "|---" * (len(means.columns) + 1) + "|"]
+    for metric, row in means.iterrows():
+        lines.append(f"| {metric} | " + " | ".join(_fmt(v) for v in row) + " |")
+    checks = [c for c in verdict.columns if c not in ("metric", "higher_is_better", "plants", "passed", "verdict")]
+    lines += ["", "## Verdict per metric", "",
+              "Counts are plants passing each check (of " + str(n) + ").", "",
+              "| metric | dir | " + " | ".join(checks) + " | all | verdict |", "|---" * (len(checks) + 4) + "|"]
+    order = verdict.assign(_d=verdict["verdict"] != "discriminates").sort_values(["_d", "metric"])
+    for r in order.itertuples(index=False):
+        d = r._asdict()
+        lines.append(f"| {d['metric']} | {'↑' if d['higher_is_better'] else '↓'} | "
+                     + " | ".join(str(int(verdict.loc[verdict['metric'] == d['metric'], c].iloc[0])) for c in checks)
+                     + f" | {d['passed']} | {d['verdict']} |")
+    return "\n".join(lines) + "\n"
+
+
+def ladder_figure(table, metrics: list[str], path: str | os.PathLike) -> Path:
+    """One panel per metric: each plant's value per rung (grey lines), the mean (black), priors shaded."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from plantbench.io.atomic import atomic_write
+
+    piv = _pivot(table)
+    rungs = [r for r in LADDER if r in piv.columns]
+    cols = min(3, len(metrics))
+    rows_n = math.ceil(len(metrics) / cols)
+    fig, axes = plt.subplots(rows_n, cols, figsize=(5.2 * cols, 3.6 * rows_n), squeeze=False)
+    x = np.arange(len(rungs))
+    for ax, metric in zip(axes.ravel(), metrics):
+        if metric not in piv.index.get_level_values(0):
+            ax.set_visible(False)
+            continue
+        data = piv.loc[metric, rungs]
+        for _, row in data.iterrows():
+            ax.plot(x, row.to_numpy(float), color="0.75", lw=0.8)
+        ax.plot(x, data.mean().to_numpy(float), color="k", lw=1.8, marker="o", ms=3, label="mean")
+        for p in PRIORS:
+            if p in rungs:
+                ax.axvspan(rungs.index(p) - 0.4, rungs.index(p) + 0.4, color="tab:red", alpha=0.12)
+        ax.set_xticks(x, rungs, rotation=70, fontsize=7)
+        ax.set_title(metric, fontsize=9)
+        ax.grid(alpha=0.3)
+    for ax in axes.ravel()[len(metrics):]:
+        ax.set_visible(False)
+    fig.suptitle("Calibration ladder: each plant (grey), mean (black); no-data priors shaded red", fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(path) as fh:
+        fig.savefig(fh, format="png", dpi=110)
+    plt.close(fig)
+    return path
