@@ -32,6 +32,18 @@ def _console():
     return Console()
 
 
+def _emit(table) -> None:
+    """Print a rich Table: boxed on a terminal; plain tab-separated columns (a header line, then one line per row)
+    into a pipe or file, for grep and scripts."""
+    if sys.stdout.isatty():
+        _console().print(table)
+        return
+    cols = table.columns
+    typer.echo("\t".join(str(c.header) for c in cols))
+    for i in range(table.row_count):
+        typer.echo("\t".join(str(c._cells[i]) for c in cols))
+
+
 def _not_yet(stage: str, issue: int) -> None:
     raise NotAvailableError(f"plantbench {stage}: not available yet (the stage lands with issue #{issue})")
 
@@ -195,11 +207,13 @@ def report(
     run_dir: Annotated[Path, typer.Argument(metavar="RUN", help="A run folder (holding results.parquet).")],
     fmt: Annotated[str, typer.Option("--format", help="Comma-separated: md, latex, csv, html.")] = "md,latex,csv,html",
     out: Annotated[Optional[Path], typer.Option(help="Output folder (default RUN/report).")] = None,  # noqa: UP045
+    calibration: Annotated[Optional[Path], typer.Option(  # noqa: UP045
+        help="A `plantbench calibrate` folder for the note on S_T [default: reports/calibration].")] = None,
 ) -> None:
     """Write tables (mean and 95 % bootstrap CI per method, species, family) and figures for a run."""
     from plantbench.report.report import write_report
 
-    files = write_report(run_dir, tuple(f.strip() for f in fmt.split(",")), out)
+    files = write_report(run_dir, tuple(f.strip() for f in fmt.split(",")), out, calibration=calibration)
     for f in files:
         typer.echo(str(f))
 
@@ -455,7 +469,7 @@ def species_cmd(
                 r["species"], f(r["H"]), f(r.get("H_paper")), f(r["B"], ".0f"), f(r.get("B_paper"), ".0f"),
                 f(r["l_B"], ".3f"), f(r.get("l_B_paper"), ".3f"),
             )
-        _console().print(table)
+        _emit(table)
         return
     table = Table("species", "family", "description")
     for name, path in species.items():
@@ -464,7 +478,7 @@ def species_cmd(
             table.add_row(name, spec.family, getattr(spec, "description", ""))
         except (InputError, ImportError) as exc:
             table.add_row(name, "?", f"invalid: {exc}" if isinstance(exc, InputError) else str(path))
-    _console().print(table)
+    _emit(table)
 
 
 @app.command("suites")
@@ -479,7 +493,7 @@ def suites_cmd() -> None:
         s = load_suite(name)
         n_cases = sum(len(c.seeds) for c in s.cases)
         table.add_row(name, str(n_cases), ", ".join(s.methods), str(s.capture.views), s.description)
-    _console().print(table)
+    _emit(table)
 
 
 @app.command("methods")
@@ -494,6 +508,40 @@ def methods_cmd() -> None:
         table.add_row(name, m.inputs, type(m).__module__)
     for name, err in methods.load_errors().items():
         table.add_row(name, "-", f"failed to load: {err}")
+    _emit(table)
+
+
+@app.command("metrics")
+def metrics_cmd(
+    headline: Annotated[bool, typer.Option("--headline", help="Only the report's headline metrics.")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="JSON (name, unit, higher_is_better, description).")]
+    = False,
+) -> None:
+    """List the metrics `plantbench evaluate` writes (unit, direction, definition); --headline: the calibrated
+    headline metrics the report leads with and `plantbench gate` checks."""
+    import json
+
+    from plantbench.metrics.info import METRICS
+    from plantbench.report.tables import HEADLINE
+
+    names = list(HEADLINE) if headline else list(METRICS)
+    rows = [METRICS[n] for n in names]
+    if as_json:
+        typer.echo(json.dumps([{"name": r.name, "unit": r.unit, "higher_is_better": r.higher_is_better,
+                                "description": r.description, "headline": r.name in HEADLINE} for r in rows],
+                              indent=1))
+        return
+    arrow = {True: "higher", False: "lower", None: "-"}
+    if not sys.stdout.isatty():  # plain columns for grep and scripts
+        for r in rows:
+            typer.echo(f"{r.name}\t{r.unit or '-'}\t{arrow[r.higher_is_better]}\t{r.description}")
+        return
+    from rich.table import Table
+
+    table = Table("metric", "unit", "better", "definition", title="headline metrics" if headline else "metrics")
+    for r in rows:
+        table.add_row(r.name + (" *" if r.name in HEADLINE and not headline else ""), r.unit, arrow[r.higher_is_better],
+                      r.description)
     _console().print(table)
 
 

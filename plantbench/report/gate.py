@@ -31,6 +31,10 @@ HEADLINE = tuple(m for m in KEY_METRICS if m != "runtime_s")
 """The gated metrics: the report's key metrics (:data:`plantbench.report.tables.KEY_METRICS`) less running time."""
 
 FLOORS = {
+    "skeleton.vf1@1%": 0.005,
+    "surface.wood.fscore@0.5%": 0.005,
+    "leaves.strict_f1": 0.005,
+    "support.skeleton@1%": 0.005,
     "stava.S_T": 0.005,
     "mesh_to_surface.D_cm": 0.05,
     "mesh_to_surface.sigma_cm": 0.05,

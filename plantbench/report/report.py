@@ -16,10 +16,11 @@ import numpy as np
 from plantbench.errors import InputError, PlantbenchError
 from plantbench.io.atomic import atomic_write
 from plantbench.report.gate import read_results, read_run_meta
-from plantbench.report.tables import KEY_METRICS, aggregate, metric_info
+from plantbench.metrics.info import HEADLINE_FIDELITY
+from plantbench.report.tables import HEADLINE, KEY_METRICS, aggregate, format_value, metric_info
 
-__all__ = ["FORMATS", "wide_table", "render_table", "write_report", "family_ranking", "family_study",
-           "distance_figure"]
+__all__ = ["FORMATS", "wide_table", "headline_table", "comparison_table", "render_table", "write_report",
+           "family_ranking", "family_study", "distance_figure", "calibration_note"]
 
 ORACLES = ("gt",)
 STUDY_METRICS = ("stava.S_T", "mesh_to_surface.D_cm", "reprojection.error", "skeleton.f1@1.0", "leaves.accuracy")
@@ -44,21 +45,40 @@ PAPER_COLUMNS = (
 )
 
 
-def _cell(mean: float, lo: float, hi: float, n: float, failed: float) -> str:
+def _cell(mean: float, lo: float, hi: float, n: float, failed: float, unit: str = "") -> str:
     n, failed = int(n), int(failed)
     if not np.isfinite(mean):
         return "failed" if failed else "-"
-    text = f"{mean:.3g}"
+    text = format_value(mean, unit)
     if np.isfinite(lo) and n > 1:
-        text += f" [{lo:.3g}, {hi:.3g}]"
+        text += f" [{format_value(lo, unit)}, {format_value(hi, unit)}]"
     if failed:
         text += f" ({failed} failed)"
     return text
 
 
+_BEST_MARK = "\u2605"
+"""Prefix of a cell holding the best value of its column: :func:`render_table` writes it bold."""
+
+
+def _best_rows(agg, metric: str) -> set:
+    """Index labels of the rows of ``agg`` (an :func:`aggregate` frame) holding the best non-oracle mean of
+    ``metric``."""
+    info = metric_info(metric)
+    if info is None or info.higher_is_better is None:
+        return set()
+    cand = agg[(agg["metric"] == metric) & ~agg["method"].str.endswith(ORACLE_MARK) & np.isfinite(agg["mean"])]
+    if cand.empty:
+        return set()
+    best = cand["mean"].max() if info.higher_is_better else cand["mean"].min()
+    return set(cand.index[cand["mean"] == best])
+
+
 def wide_table(table, by: tuple[str, ...] = ("method",), metrics: tuple[str, ...] | None = None,
-               labels: dict[str, str] | None = None):
-    """One row per group, one column per metric, cells 'mean [lo, hi]'. Returns a pandas DataFrame of strings."""
+               labels: dict[str, str] | None = None, *, mark_best: bool = True):
+    """One row per group, one column per metric, cells 'mean [lo, hi]' in fixed notation. With ``mark_best``, the
+    best non-oracle mean of each column (within each group of the leading ``by`` keys other than 'method') is
+    marked for bold. Returns a pandas DataFrame of strings."""
     import pandas as pd
 
     agg = aggregate(table, by)
@@ -67,15 +87,74 @@ def wide_table(table, by: tuple[str, ...] = ("method",), metrics: tuple[str, ...
     present = list(dict.fromkeys(agg["metric"]))
     cols = [m for m in (metrics or KEY_METRICS) if m in present] if metrics or set(KEY_METRICS) & set(present) \
         else present
+    outer = [b for b in by if b != "method"]
+    best: set = set()
+    if mark_best:
+        for m in cols:
+            for _, grp in (agg.groupby(outer, sort=False) if outer else [(None, agg)]):
+                best |= _best_rows(grp, m)
     rows = []
     for key, grp in agg.groupby(list(by), sort=True):
-        g = grp.set_index("metric")
         row = dict(zip(by, key if isinstance(key, tuple) else (key,)))
         for m in cols:
-            row[(labels or {}).get(m, m)] = _cell(*g.loc[m, ["mean", "lo", "hi", "n", "failed"]]) if m in g.index \
-                else "-"
+            hit = grp[grp["metric"] == m]
+            info = metric_info(m)
+            text = _cell(*hit.iloc[0][["mean", "lo", "hi", "n", "failed"]], info.unit if info else "") \
+                if len(hit) else "-"
+            if len(hit) and hit.index[0] in best:
+                text = _BEST_MARK + text
+            row[(labels or {}).get(m, m)] = text
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def headline_table(table, metrics: tuple[str, ...]):
+    """Metrics down the side (headline first), methods across, cells 'mean [95 % CI]', best non-oracle marked: a
+    long list of metrics stays readable where a wide table would run off the page."""
+    import pandas as pd
+
+    agg = aggregate(table, ("method",))
+    methods = sorted(agg["method"].unique(), key=lambda m: (not m.endswith(ORACLE_MARK), m))
+    rows = []
+    for m in metrics:
+        sub = agg[agg["metric"] == m]
+        if sub.empty:
+            continue
+        best = _best_rows(agg, m)
+        row = {"metric": _unit_label(m)}
+        for method in methods:
+            hit = sub[sub["method"] == method]
+            info = metric_info(m)
+            text = _cell(*hit.iloc[0][["mean", "lo", "hi", "n", "failed"]], info.unit if info else "") \
+                if len(hit) else "-"
+            row[method] = (_BEST_MARK + text) if len(hit) and hit.index[0] in best else text
+        rows.append(row)
+    return pd.DataFrame(rows, columns=["metric", *methods])
+
+
+def comparison_table(table, metrics: tuple[str, ...], reference: str = "prior"):
+    """Paired differences over cases (:func:`plantbench.report.tables.paired_differences`): every method against
+    ``reference`` (the no-data prior) and every pair of the other non-oracle methods. Returns (DataFrame of
+    strings, raw differences)."""
+    import pandas as pd
+
+    from plantbench.report.tables import paired_differences
+
+    names = sorted(table["method"].unique())
+    ref = next((m for m in names if m.split(" ")[0] == reference), None)
+    methods = [m for m in names if not m.endswith(ORACLE_MARK) and m != ref]
+    pairs = [(m, ref) for m in methods] if ref else []
+    pairs += [(a, b) for i, a in enumerate(methods) for b in methods[i + 1:]]
+    raw = paired_differences(table, metrics, pairs)
+    rows = []
+    for r in raw.itertuples(index=False):
+        info = metric_info(r.metric)
+        unit = info.unit if info else ""
+        rows.append({"metric": _unit_label(r.metric), "comparison": f"{r.a} - {r.b}", "cases": r.n,
+                     "difference [95 % CI]": f"{format_value(r.diff, unit)} [{format_value(r.lo, unit)}, "
+                                             f"{format_value(r.hi, unit)}]",
+                     "verdict": r.verdict})
+    return pd.DataFrame(rows, columns=["metric", "comparison", "cases", "difference [95 % CI]", "verdict"]), raw
 
 
 def _unit_label(metric: str) -> str:
@@ -87,10 +166,15 @@ def _unit_label(metric: str) -> str:
 
 
 def render_table(df, fmt: str, caption: str) -> str:
+    """``df`` (strings) as Markdown, LaTeX, HTML or CSV; cells marked best are bold (CSV: unmarked)."""
+    def cell(v, bold: tuple[str, str]) -> str:
+        v = str(v)
+        return f"{bold[0]}{v[1:]}{bold[1]}" if v.startswith(_BEST_MARK) else v
+
     if fmt == "md":
         header = "| " + " | ".join(map(str, df.columns)) + " |"
         sep = "|" + "|".join("---" for _ in df.columns) + "|"
-        body = ["| " + " | ".join(str(v) for v in row) + " |" for row in df.itertuples(index=False)]
+        body = ["| " + " | ".join(cell(v, ("**", "**")) for v in row) + " |" for row in df.itertuples(index=False)]
         return f"**{caption}**\n\n" + "\n".join([header, sep, *body]) + "\n"
     if fmt == "latex":
         def esc(s: str) -> str:
@@ -102,31 +186,71 @@ def render_table(df, fmt: str, caption: str) -> str:
         cols = "l" * len(df.columns)
         lines = [r"\begin{table}[t]", r"\centering", rf"\caption{{{esc(caption)}}}", rf"\begin{{tabular}}{{{cols}}}",
                  r"\toprule", " & ".join(esc(str(c)) for c in df.columns) + r" \\", r"\midrule"]
-        lines += [" & ".join(esc(str(v)) for v in row) + r" \\" for row in df.itertuples(index=False)]
+        lines += [" & ".join(cell(esc(str(v)), (r"\textbf{", "}")) for v in row) + r" \\"
+                  for row in df.itertuples(index=False)]
         lines += [r"\bottomrule", r"\end{tabular}", r"\end{table}"]
         return "\n".join(lines) + "\n"
     if fmt == "html":
-        return f"<h2>{html.escape(caption)}</h2>\n" + df.to_html(index=False, escape=True, border=0) + "\n"
+        head = "".join(f"<th>{html.escape(str(c))}</th>" for c in df.columns)
+        body = "".join("<tr>" + "".join(f"<td>{cell(html.escape(str(v)), ('<b>', '</b>'))}</td>" for v in row)
+                       + "</tr>" for row in df.itertuples(index=False))
+        return (f"<h2>{html.escape(caption)}</h2>\n<div class='scroll'><table><thead><tr>{head}</tr></thead>"
+                f"<tbody>{body}</tbody></table></div>\n")
     if fmt == "csv":
-        return df.to_csv(index=False)
+        return df.map(lambda v: str(v).removeprefix(_BEST_MARK)).to_csv(index=False)
     raise InputError(f"unknown report format {fmt!r}; choose one of {', '.join(FORMATS)}")
 
 
 def _tables(table) -> list[tuple[str, str, object]]:
-    """(slug, caption, DataFrame) for every table of the report."""
-    labels = {m: _unit_label(m) for m in set(table["metric"])}
-    out = [("overall", "Per method: mean [95 % bootstrap CI] over cases", wide_table(table, ("method",), labels=labels))]
-    paper = [m for _, m in PAPER_COLUMNS if m in set(table["metric"])]
+    """(slug, caption, DataFrame) for every table of the report: the headline (metrics down the side), the paired
+    comparisons, the paper's columns, then per species and per family on the headline metrics."""
+    present = set(table["metric"])
+    labels = {m: _unit_label(m) for m in present}
+    key = tuple(m for m in KEY_METRICS if m in present and m != "runtime_s") + (("runtime_s",) if "runtime_s" in
+                                                                                 present else ())
+    out = [("overall", "Per method: mean [95 % bootstrap CI] over cases; headline metrics first (bold: best "
+                       "non-oracle method)", headline_table(table, key))]
+    compared = tuple(m for m in KEY_METRICS if m in present and m != "runtime_s")
+    comp, _ = comparison_table(table, compared)
+    if not comp.empty:
+        out.append(("paired", "Paired differences over cases (mean and 95 % bootstrap CI): each method against the "
+                              "no-data prior, and each pair of methods. 'beats' only when the interval excludes 0",
+                    comp))
+    paper = [m for _, m in PAPER_COLUMNS if m in present]
     if paper:
         names = {m: label for label, m in PAPER_COLUMNS}
-        out.append(("paper", "Per species and method, seed 000 Table 3 columns",
+        out.append(("paper", "Per species and method, the reference paper's Table 3 columns",
                     wide_table(table, ("species", "method"), tuple(paper), names)))
-    out.append(("species", "Per species and method", wide_table(table, ("species", "method"), labels=labels)))
+    short = tuple(m for m in HEADLINE + ("stava.S_T", "mesh_to_surface.D_cm") if m in present)
+    out.append(("species", "Per species and method, headline metrics (every metric: results.csv)",
+                wide_table(table, ("species", "method"), short or None, labels=labels)))
     if "family" in table.columns:
-        out.append(("family", "Per plant family and method", wide_table(table, ("family", "method"), labels=labels)))
+        out.append(("family", "Per plant family and method, headline metrics",
+                    wide_table(table, ("family", "method"), short or None, labels=labels)))
     if "sweep" in table.columns and table["sweep"].notna().any():
-        out.append(("sweep", "Per sweep value and method", wide_table(table, ("sweep", "method"), labels=labels)))
+        out.append(("sweep", "Per sweep value and method", wide_table(table, ("sweep", "method"), short or None,
+                                                                      labels=labels)))
     return out
+
+
+def calibration_note(calibration: Path | None) -> str:
+    """One sentence on what S_T measures, with the calibration's numbers (reports/calibration/ladder.csv), or ''."""
+    import pandas as pd
+
+    path = (calibration or Path()) / "ladder.csv"
+    if calibration is None or not path.is_file():
+        return ""
+    t = pd.read_csv(path)
+    st = t[(t["metric"] == "stava.S_T") & (t["status"] == "ok")]
+    mean = st.assign(rung=st["method"].str.replace("ladder:", "", regex=False)).groupby("rung")["value"].mean()
+    if not {"prior-a", "prior-b", "orders<=2", "jitter-0.5%"} <= set(mean.index):
+        return ""
+    return (f"S_T (Stava et al.) measures how species-like a tree is, not whether it is this tree: on the calibration "
+            f"ladder ({st['case'].nunique()} plants) a tree of the species grown from another seed scores "
+            f"{(mean['prior-a'] + mean['prior-b']) / 2:.2f}, the exact skeleton pruned to branch orders <= 2 "
+            f"{mean['orders<=2']:.2f} and the exact skeleton jittered by 0.5 % of the height {mean['jitter-0.5%']:.2f}; "
+            f"the headline fidelity metrics ({', '.join(HEADLINE_FIDELITY)}) are those that rank these correctly "
+            f"(reports/calibration).")
 
 
 def _figures(table, folder: Path) -> list[Path]:
@@ -212,9 +336,12 @@ def provenance(run_dir: Path) -> str:
     return f"Inputs: generated and captured by this run ({code})."
 
 
-def write_report(run_dir: str | os.PathLike, formats: tuple[str, ...] = FORMATS, out: str | os.PathLike | None = None
-                 ) -> list[Path]:
-    """Write the report of ``run_dir`` into ``out`` (default ``run_dir/report``); return the files written."""
+def write_report(run_dir: str | os.PathLike, formats: tuple[str, ...] = FORMATS, out: str | os.PathLike | None = None,
+                 *, calibration: str | os.PathLike | None = None) -> list[Path]:
+    """Write the report of ``run_dir`` into ``out`` (default ``run_dir/report``); return the files written.
+
+    ``calibration``: a ``plantbench calibrate`` folder whose ladder gives the sentence on what S_T measures (default:
+    the project's reports/calibration when it exists)."""
     for f in formats:
         if f not in FORMATS:
             raise InputError(f"unknown report format {f!r}; choose one of {', '.join(FORMATS)}")
@@ -224,6 +351,13 @@ def write_report(run_dir: str | os.PathLike, formats: tuple[str, ...] = FORMATS,
     out.mkdir(parents=True, exist_ok=True)
     tables = _tables(table)
     origin = provenance(run_dir)
+    if calibration is None:
+        from plantbench.paths import project_root
+
+        calibration = project_root() / "reports" / "calibration"
+    note = calibration_note(Path(calibration))
+    if note:
+        origin = f"{origin}\n\n{note}" if origin else note
     figures = _figures(table, out / "figures")
     distances = distance_figure(run_dir, out / "figures" / "distances.png")
     if distances is not None:
@@ -251,8 +385,12 @@ def write_report(run_dir: str | os.PathLike, formats: tuple[str, ...] = FORMATS,
             samples = _sample_views(run_dir, out)
             body = ("<!doctype html><html><head><meta charset='utf-8'><title>plantbench report</title>"
                     "<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}"
-                    "td,th{padding:2px 8px;border-bottom:1px solid #ddd;font-size:13px}</style></head><body>"
-                    f"<h1>{html.escape(run_dir.name)}</h1>" + (f"<p>{html.escape(origin)}</p>" if origin else "")
+                    "td,th{padding:2px 8px;border-bottom:1px solid #ddd;font-size:13px;white-space:nowrap;"
+                    "text-align:right}td:first-child,th:first-child{text-align:left}"
+                    "th{position:sticky;top:0;background:#f4f4f4}.scroll{overflow-x:auto;max-width:100%}"
+                    "img{max-width:100%}</style></head><body>"
+                    f"<h1>{html.escape(run_dir.name)}</h1>"
+                    + "".join(f"<p>{html.escape(par)}</p>" for par in origin.split("\n\n") if par)
                     + "".join(parts)
                     + "".join(f"<h2>{p.stem}</h2><img src='figures/{p.name}'>" for p in figures)
                     + ("<h2>sample views</h2>" + "".join(f"<img src='{s}' width='256'>" for s in samples)

@@ -7,10 +7,18 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["bootstrap_ci", "aggregate", "summary_table", "KEY_METRICS", "metric_info"]
+from plantbench.metrics.info import HEADLINE_FIDELITY, HEADLINE_GT_FREE
 
-# the columns shown first (when present), in this order
+__all__ = ["bootstrap_ci", "aggregate", "summary_table", "KEY_METRICS", "metric_info", "paired_differences",
+           "format_value", "HEADLINE"]
+
+HEADLINE = HEADLINE_FIDELITY + HEADLINE_GT_FREE
+"""The calibrated fidelity metrics (:data:`plantbench.metrics.info.HEADLINE_FIDELITY`) and the GT-free skeleton
+support: the report's headline, first in every table (``plantbench metrics --headline``, run.json's ``headline``)."""
+
+# the columns shown first (when present), in this order: the headline, then the paper's and the older ones
 KEY_METRICS = (
+    *HEADLINE,
     "stava.S_T",
     "mesh_to_surface.D_cm",
     "mesh_to_surface.sigma_cm",
@@ -22,6 +30,25 @@ KEY_METRICS = (
     "points.all.fscore@1%",
     "runtime_s",
 )
+
+
+SHORT_LABELS = {
+    "skeleton.vf1@1%": "skeleton vF1 1%H",
+    "surface.wood.fscore@0.5%": "wood F 0.5%H",
+    "leaves.strict_f1": "leaf F1 strict",
+    "support.skeleton@1%": "support 1%H",
+    "stava.S_T": "S_T",
+    "mesh_to_surface.D_cm": "D cm",
+    "mesh_to_surface.sigma_cm": "sigma cm",
+    "mesh_to_scan.D_cm": "D scan cm",
+    "reprojection.error": "reproj. err",
+    "reprojection.iou": "reproj. IoU",
+    "leaves.accuracy": "leaf count acc",
+    "skeleton.f1@1.0": "skeleton F1 1r",
+    "points.all.fscore@1%": "points F 1%H",
+    "runtime_s": "runtime s",
+}
+"""Short labels (unit and tolerance in the name) for the terminal table, which must fit 80 columns."""
 
 
 def metric_info(name: str):
@@ -67,6 +94,53 @@ def aggregate(table, by: tuple[str, ...] = ("method",), *, n_boot: int = 2000, s
     return pd.DataFrame(rows, columns=list(by) + ["metric", "mean", "lo", "hi", "n", "failed"])
 
 
+def format_value(v: float, unit: str = "") -> str:
+    """Fixed notation for a table: 2840 (never 2.84e+03), 12.3, 0.412; '-' for a missing value."""
+    if v is None or not np.isfinite(v):
+        return "-"
+    a = abs(v)
+    if a >= 100 or (a == int(a) and a >= 10):
+        return f"{v:.0f}"
+    if a >= 10 or unit == "cm":
+        return f"{v:.1f}" if a >= 10 else f"{v:.2f}"
+    return f"{v:.3f}"
+
+
+def paired_differences(table, metrics: tuple[str, ...], pairs: list[tuple[str, str]], *, n_boot: int = 5000,
+                       level: float = 0.95, seed: int = 0):
+    """Method a minus method b per metric, paired over the cases both scored: mean difference, percentile bootstrap
+    interval of the mean (cases resampled), and a verdict in the metric's direction: 'a beats b' only when the
+    interval excludes 0 on the good side, 'a below b' when it excludes 0 on the bad side, else 'within noise'.
+
+    Returns a DataFrame: metric, a, b, n, diff, lo, hi, verdict.
+    """
+    import pandas as pd
+
+    ok = table[(table["status"] == "ok") & table["metric"].isin(metrics)]
+    wide = ok.pivot_table(index=["metric", "case"], columns="method", values="value", aggfunc="first")
+    rows = []
+    for metric in metrics:
+        if metric not in wide.index.get_level_values(0):
+            continue
+        info = metric_info(metric)
+        higher = info.higher_is_better if info is not None else None
+        w = wide.loc[metric]
+        for a, b in pairs:
+            if a not in w.columns or b not in w.columns:
+                continue
+            d = (w[a] - w[b]).to_numpy(float)
+            d = d[np.isfinite(d)]
+            lo, hi = bootstrap_ci(d, n_boot=n_boot, level=level, seed=seed)
+            verdict = "within noise"
+            if d.size > 1 and higher is not None and np.isfinite(lo):
+                if lo > 0 or hi < 0:
+                    good = (lo > 0) == bool(higher)
+                    verdict = f"{a} beats {b}" if good else f"{a} below {b}"
+            rows.append({"metric": metric, "a": a, "b": b, "n": int(d.size),
+                         "diff": float(d.mean()) if d.size else float("nan"), "lo": lo, "hi": hi, "verdict": verdict})
+    return pd.DataFrame(rows, columns=["metric", "a", "b", "n", "diff", "lo", "hi", "verdict"])
+
+
 def _fmt(mean: float, lo: float, hi: float) -> str:
     """'mean ± half-width of the interval' (compact, for terminals)."""
     if not np.isfinite(mean):
@@ -84,11 +158,13 @@ def summary_table(table, metrics: tuple[str, ...] = KEY_METRICS):
     agg = aggregate(table)
     present = [m for m in metrics if m in set(agg["metric"])]
     methods = sorted(agg["method"].unique())
-    out = Table("metric", *methods, title="results: mean ± half-width of the 95 % bootstrap CI over cases")
+    out = Table("metric", *methods, title="results: mean ± half-width of the 95 % bootstrap CI over cases "
+                "(H: plant height, r: local radius; `plantbench metrics` defines each)")
     idx = agg.set_index(["metric", "method"])
     for m in present:
         info = metric_info(m)
-        label = m + ("" if info is None or info.higher_is_better is None else " ↑" if info.higher_is_better else " ↓")
+        label = SHORT_LABELS.get(m, m) + ("" if info is None or info.higher_is_better is None
+                                          else " ↑" if info.higher_is_better else " ↓")
         out.add_row(label, *(_fmt(*idx.loc[(m, meth), ["mean", "lo", "hi"]]) if (m, meth) in idx.index else "-"
                              for meth in methods))
     cells = table.groupby(["method", "case"])["status"].agg(lambda s: (s != "ok").any())

@@ -74,6 +74,7 @@ def run_metadata(suite: Suite, methods: list[str]) -> dict:
     """What every results file records: versions, git SHA, config hash, Mitsuba variant."""
     from plantbench import __version__
     from plantbench.backend import llvm_target_id, select_variant
+    from plantbench.report.tables import HEADLINE
 
     pkgs = {}
     for name in PACKAGES:
@@ -92,6 +93,7 @@ def run_metadata(suite: Suite, methods: list[str]) -> dict:
         "root_seed": suite.root_seed,
         "mitsuba_variant": select_variant(),
         "llvm_target": llvm_target_id(),
+        "headline": list(HEADLINE),
         "packages": pkgs,
         "python": platform.python_version(),
         "platform": platform.platform(),

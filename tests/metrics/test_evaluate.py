@@ -43,6 +43,9 @@ def test_gt_oracle_scores_perfectly(case):
     assert res["leaves.accuracy"] == 1.0 and res["leaves.f1"] == 1.0 and res["leaves.dic"] == 0.0
     for t in ("0.5", "1.0", "2.0"):
         assert res[f"skeleton.f1@{t}"] == 1.0
+    for tau in ("0.5%", "1%", "2%"):
+        assert res[f"skeleton.vf1@{tau}"] == 1.0
+    assert res["leaves.strict_f1"] == 1.0
     for part in ("all", "wood", "foliage"):
         for tau in ("0.5%", "1%", "2%"):
             assert res[f"surface.{part}.fscore@{tau}"] >= 0.999
@@ -83,6 +86,15 @@ def test_degenerate_reconstructions(case):
     assert res["mesh_to_scan.D_cm"] is None and res["reprojection.error"] == 1.0 and res["reprojection.iou"] == 0.0
     assert res["leaves.accuracy"] is None and "leaves.json" in reasons["leaves.accuracy"]
     assert res["surface.all.fscore@1%"] == 0.0 and res["skeleton.f1@1.0"] >= 0.0
+    # the calibrated headline: a one-node skeleton has no length (vF1 0, no GT-free support); no leaves.json: None
+    assert res["skeleton.vf1@1%"] == 0.0 and res["skeleton.vprecision@1%"] == 0.0
+    assert res["support.skeleton@1%"] is None and "no length" in reasons["support.skeleton@1%"]
+    assert res["leaves.strict_f1"] is None
+    write_reconstruction(root / "no_leaves", plant.skeleton, leaves=[])
+    res = evaluate(root / "case", root / "no_leaves", options=FAST)
+    assert res["leaves.strict_f1"] == 0.0 and res["leaves.strict_recall"] == 0.0 and res["skeleton.vf1@1%"] == 1.0
+    # the ground truth's own skeleton: supported by its scan where the scan saw it (a share in (0, 1])
+    assert 0.0 < res["support.skeleton@1%"] <= 1.0
     assert all(v is None or math.isfinite(v) for v in res.values())
 
 
