@@ -441,6 +441,92 @@ def dataset_verify(
                f"manifest sha256 {manifest_sha256(folder)}")
 
 
+import_app = typer.Typer(help="Real captures in: a scan file, or photos with a COLMAP model, become a case (no plant/).",
+                         no_args_is_help=True)
+app.add_typer(import_app, name="import")
+
+
+@import_app.command("scan")
+def import_scan_cmd(
+    file: Annotated[Path, typer.Argument(metavar="FILE", help="Scan file: .xyz .txt .csv .ply .las .laz .pcd.")],
+    out: Annotated[Path, typer.Option(help="Case folder to create (absent or empty).")],
+    units: Annotated[str, typer.Option(help="Units of the file's coordinates: m, cm or mm.")] = "m",
+    up: Annotated[str, typer.Option(help="The file's axis that points up: z, -z, y, -y, x, -x.")] = "z",
+    max_height: Annotated[float, typer.Option(help="Refuse a cloud taller than this (metres, after --units).")]
+    = 100.0,
+) -> None:
+    """Import a laser scan as CASE/scan/ (metres, Z up, root at the origin); the frame goes to CASE/case.json."""
+    from plantbench.capture.importers import import_scan
+
+    res = import_scan(file, out, units=units, up=up, max_height=max_height)
+    r = res.record
+    typer.echo(f"{out}: {r.source.points} points from {file.name}, {r.height:.2f} m tall; " + "; ".join(res.notes))
+
+
+@import_app.command("views")
+def import_views_cmd(
+    images: Annotated[Path, typer.Option(help="Folder holding the images under the names the COLMAP model uses.")],
+    colmap: Annotated[Path, typer.Option(help="COLMAP model folder (cameras, images, points3D; .txt or .bin).")],
+    out: Annotated[Path, typer.Option(help="Case folder to create (absent or empty).")],
+    scale: Annotated[Optional[float], typer.Option(  # noqa: UP045
+        help="Metres per model unit [default: 1, recorded as assumed].")] = None,
+    up: Annotated[str, typer.Option(help="auto (the cameras' mean up vector) or the model's up axis: z, -z, y, ...")]
+    = "auto",
+) -> None:
+    """Import photos with a COLMAP model as CASE/views/ (OpenCV cameras in metres, Z up, root at the origin)."""
+    from plantbench.capture.importers import import_views
+
+    res = import_views(images, colmap, out, scale=scale, up=up)
+    for note in res.notes[:-1]:
+        typer.echo(f"note: {note}")
+    typer.echo(f"{out}: {res.notes[-1]}")
+
+
+qsm_app = typer.Typer(help="QSM cylinder tables (TreeQSM / rTwig columns) to and from skeletons.",
+                      no_args_is_help=True)
+app.add_typer(qsm_app, name="qsm")
+
+_CASE_HELP = "An imported case: the QSM is in the frame of the file imported into it (units, axes, georeference)."
+
+
+@qsm_app.command("export")
+def qsm_export(
+    recon: Annotated[Path, typer.Argument(metavar="RECON_DIR", help="A method's output folder (skeleton.ply).")],
+    out: Annotated[Path, typer.Option(help="CSV file to write.")],
+    case: Annotated[Optional[Path], typer.Option(help=_CASE_HELP)] = None,  # noqa: UP045
+) -> None:
+    """Write a reconstruction's skeleton as a cylinder table (one cylinder per edge)."""
+    from plantbench.io.ply import read_skeleton
+    from plantbench.io.qsm import write_qsm_csv
+
+    skeleton = read_skeleton(recon / "skeleton.ply")
+    if case is not None:
+        from plantbench.capture.importers import read_case_json, skeleton_to_frame
+
+        skeleton = skeleton_to_frame(skeleton, read_case_json(case).frame, to="source")
+    df = write_qsm_csv(out, skeleton)
+    typer.echo(f"{out}: {len(df)} cylinders, {df['branch'].nunique()} branches")
+
+
+@qsm_app.command("import")
+def qsm_import(
+    file: Annotated[Path, typer.Argument(metavar="FILE.csv", help="Cylinder table CSV (start_x ... branch_order).")],
+    out: Annotated[Path, typer.Option(help="Output folder: skeleton.ply is written there, for `plantbench evaluate`.")],
+    case: Annotated[Optional[Path], typer.Option(help=_CASE_HELP)] = None,  # noqa: UP045
+) -> None:
+    """Read a cylinder table (TreeQSM, rTwig) as a reconstruction's skeleton.ply."""
+    from plantbench.io.plantio import write_reconstruction
+    from plantbench.io.qsm import read_qsm_csv
+
+    skeleton = read_qsm_csv(file)
+    if case is not None:
+        from plantbench.capture.importers import read_case_json, skeleton_to_frame
+
+        skeleton = skeleton_to_frame(skeleton, read_case_json(case).frame, to="local")
+    write_reconstruction(out, skeleton)
+    typer.echo(f"{out / 'skeleton.ply'}: {len(skeleton)} nodes, {len(skeleton.roots)} root(s)")
+
+
 # ------------------------------------------------------------------------------------------------------ listings
 
 
