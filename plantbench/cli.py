@@ -282,6 +282,8 @@ def calibrate(
         help="Replace every case's seed (plants that are not in the suite).")] = None,
     species: Annotated[Optional[str], typer.Option(  # noqa: UP045
         help="Comma-separated species: only these cases of the suite.")] = None,
+    from_run: Annotated[Optional[Path], typer.Option(  # noqa: UP045
+        help="Re-make the verdicts and report from an earlier calibration run folder instead of running.")] = None,
 ) -> None:
     """Score a ladder of controlled reconstructions of each plant (ground truth pruned, jittered, scaled, leaves
     moved; the no-data prior; another species) with every metric, and say which metrics order them by fidelity."""
@@ -289,41 +291,35 @@ def calibrate(
 
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from plantbench.io.atomic import atomic_write
     from plantbench.metrics.info import HEADLINE_FIDELITY
-    from plantbench.report.calibration import calibration_markdown, ladder_figure, run_calibration, verdicts
-    from plantbench.report.gate import read_run_meta
+    from plantbench.report.calibration import run_calibration, write_calibration
+    from plantbench.report.gate import read_results, read_run_meta
     from plantbench.suites import load_suite
 
-    spec = load_suite(suite)
-    chosen = [s.strip() for s in species.split(",")] if species else None
     console = _console()
     t0 = time.perf_counter()
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=console) as bar:
-        task = bar.add_task("calibration", total=None)
+    if from_run is not None:
+        run_dir, table = from_run, read_results(from_run)
+        how = f"`plantbench calibrate --from-run {from_run}`"
+    else:
+        spec = load_suite(suite)
+        chosen = [s.strip() for s in species.split(",")] if species else None
+        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                      console=console) as bar:
+            task = bar.add_task("calibration", total=None)
 
-        def progress(done: int, total: int, rec: dict) -> None:
-            bar.update(task, completed=done, total=total, description=f"calibration: {rec['kind']} {rec['status']}")
+            def progress(done: int, total: int, rec: dict) -> None:
+                bar.update(task, completed=done, total=total,
+                           description=f"calibration: {rec['kind']} {rec['status']}")
 
-        result = run_calibration(spec, out, workers=workers, progress=progress, seed=seed, species=chosen)
-    table = result.table
-    verdict = verdicts(table)
-    reports.mkdir(parents=True, exist_ok=True)
-    with atomic_write(reports / "ladder.csv", "w") as fh:
-        table.to_csv(fh, index=False)
-    with atomic_write(reports / "verdicts.csv", "w") as fh:
-        verdict.to_csv(fh, index=False)
-    figure = ladder_figure(table, list(HEADLINE_FIDELITY) + ["stava.S_T", "leaves.f1", "skeleton.f1@1.0"],
-                           reports / "ladder.png")
-    meta = read_run_meta(result.run_dir)
-    header = (f"Made by `plantbench calibrate --suite {spec.name}"
-              + (f" --seed {seed}" if seed is not None else "") + (f" --species {species}" if species else "")
-              + f"` (code {meta.get('git_sha')}, {table['case'].nunique()} plants, "
-              f"{time.perf_counter() - t0:.0f} s). ladder.csv holds every rung's every metric; verdicts.csv the "
-              f"verdicts; ![ladder]({figure.name}) the headline metrics per rung.")
-    with atomic_write(reports / "README.md", "w") as fh:
-        fh.write(calibration_markdown(table, verdict, header=header, headline=HEADLINE_FIDELITY))
+            result = run_calibration(spec, out, workers=workers, progress=progress, seed=seed, species=chosen)
+        run_dir, table = result.run_dir, result.table
+        how = (f"`plantbench calibrate --suite {spec.name}" + (f" --seed {seed}" if seed is not None else "")
+               + (f" --species {species}" if species else "") + "`")
+    meta = read_run_meta(run_dir)
+    header = (f"Made by {how} (run {meta.get('suite', run_dir.name)}, code {meta.get('git_sha')}, "
+              f"{table['case'].nunique()} plants, run time {meta.get('seconds', float('nan')):.0f} s).")
+    verdict, _ = write_calibration(table, reports, header=header)
     good = verdict[verdict["verdict"] == "discriminates"]
     console.print(f"{reports}/README.md: {len(good)} of {len(verdict)} metrics discriminate "
                   f"({table['case'].nunique()} plants, {time.perf_counter() - t0:.0f} s)")

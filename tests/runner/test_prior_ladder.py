@@ -122,9 +122,13 @@ def _ladder_table(values_per_case: dict[str, dict[str, float]], metric: str) -> 
 
 
 def test_verdict_on_hand_made_ladders():
-    good = {"gt": 1.0, "orders<=2": 0.8, "prior-a": 0.3, "prior-b": 0.35, "jitter-0.25%": 0.98, "jitter-0.5%": 0.9,
-            "jitter-1%": 0.7, "jitter-2%": 0.4}
+    good = {"gt": 1.0, "orders<=3": 0.9, "orders<=2": 0.8, "orders<=1": 0.6, "prior-a": 0.3, "prior-b": 0.35,
+            "jitter-0.25%": 0.98, "jitter-0.5%": 0.9, "jitter-1%": 0.7, "jitter-2%": 0.4}
     assert all(plant_checks(good, True).values())
+    assert all(plant_checks(dict(good, **{"orders<=3": 1.0, "orders<=2": 1.0}), True).values())  # nothing to prune
+    assert not plant_checks(dict(good, **{"orders<=1": 1.0}), True)["pruning monotone"]  # pruning must cost
+    blind = dict(good, **{"orders<=1": 0.95})  # a metric that prefers the more pruned tree (one-way distance)
+    assert not plant_checks(blind, True)["pruning monotone"]
     species_like = dict(good, **{"prior-a": 0.85, "prior-b": 0.9})  # the prior beats pruning: fails
     checks = plant_checks(species_like, True)
     assert not checks["orders<=2>prior"] and not checks["jitter-0.5%>prior"] and checks["jitter monotone"]
