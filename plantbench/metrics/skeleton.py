@@ -15,8 +15,9 @@ vprecision(f) = weight of predicted samples (their own radii) within tau of a gr
 weight; vF1 the harmonic mean. Radius-relative tolerances read ~0 for anything made from images (the exact skeleton
 jittered by 0.5 % of the height scores F1@1.0 0.02-0.05) and unweighted height-relative ones are passed by a tree of
 the species that looks at nothing (twigs fill the crown); weighting by volume makes the trunk and the main limbs, which
-a capture does constrain, carry the score. A predicted skeleton with no length (empty, one node, zero radii) scores
-vprecision = vrecall = vF1 = 0.
+a capture does constrain, carry the score. An empty predicted skeleton scores vprecision = vrecall = vF1 = 0; one
+with no length (a single node) or no radius has vprecision 0 and vF1 0, its vrecall being the share of the
+ground-truth wood within tau of its nodes.
 
 DBH: diameter of the trunk at height ``breast_height`` above the lowest skeleton node (1.3 m, as TreeQSM), the trunk
 being the path that starts at the thickest root and always follows the thickest child; linear interpolation of the
