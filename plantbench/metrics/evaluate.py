@@ -112,9 +112,8 @@ def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike,
     from plantbench.io.plantio import read_plant, read_reconstruction
     from plantbench.io.ply import read_points
     from plantbench.metrics import leaves as lv
-    from plantbench.metrics.points import cloud_metrics
+    from plantbench.metrics.points import cloud_metrics, tau_label
     from plantbench.metrics.reprojection import render_silhouettes, reprojection_error
-    from plantbench.metrics.points import tau_label
     from plantbench.metrics.skeleton import HEIGHT_FRACTIONS, skeleton_attributes, skeleton_prf, skeleton_support
     from plantbench.metrics.stava import stava_similarities
     from plantbench.metrics.surface import (
@@ -177,10 +176,10 @@ def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike,
         _set(values, reasons, "support", None, "no skeleton.ply in the output" if recon.skeleton is None
              else "no scan/scan.ply or observed cloud above the ground")
     else:
-        _set(values, reasons, "support", {
-            f"skeleton@{tau_label(f)}": skeleton_support(recon.skeleton, observed, tolerance=f * obs_height,
-                                                         step=options.skeleton_step)
-            for f in HEIGHT_FRACTIONS}, "the skeleton has no length")
+        shares = skeleton_support(recon.skeleton, observed, tolerances=tuple(f * obs_height for f in HEIGHT_FRACTIONS),
+                                  step=options.skeleton_step)
+        _set(values, reasons, "support", None if shares is None else
+             {f"skeleton@{tau_label(f)}": v for f, v in zip(HEIGHT_FRACTIONS, shares)}, "the skeleton has no length")
 
     # ---- ground-truth surface sample (labels 0 wood, 1 foliage)
     gt_pts = gt_lab = None

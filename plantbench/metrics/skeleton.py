@@ -128,27 +128,28 @@ def skeleton_prf(gt: Skeleton, pred: Skeleton, *, thresholds: tuple[float, ...] 
     return out
 
 
-def skeleton_support(skeleton: Skeleton, observed: np.ndarray, *, tolerance: float, step: float = 0.001
-                     ) -> float | None:
-    """Share of the skeleton's length within ``tolerance`` metres of an observed point (the GT-free check).
+def skeleton_support(skeleton: Skeleton, observed: np.ndarray, *, tolerances: tuple[float, ...],
+                     step: float = 0.001) -> list[float] | None:
+    """Share of the skeleton's length within each of ``tolerances`` (metres) of an observed point: the GT-free check.
 
     skeleton : the reconstruction; observed : (m, 3) float, the points the capture gave (the scan, or the input cloud).
-    A branch through empty space counts against the method although there is no ground truth. None when the skeleton
-    has no length or there is no observed point.
+    A branch through empty space counts against the method although there is no ground truth. Returns one share per
+    tolerance (one nearest-neighbour query for all), or None when the skeleton has no length or there is no observed
+    point.
     """
     from plantbench.metrics.surface import kdtree, nearest_distances
 
     obs = check_shape("observed points", observed, (-1, 3), "f")
-    if not tolerance > 0:
+    if not all(t > 0 for t in tolerances):
         from plantbench.errors import InputError
 
-        raise InputError(f"skeleton_support: tolerance must be > 0, got {tolerance}")
+        raise InputError(f"skeleton_support: tolerances must be > 0, got {tolerances}")
     w = sample_weights(skeleton, step, volume=False)
     if not len(obs) or not w.sum() > 0:
         return None
     pts, _ = sample_skeleton(skeleton, step)
     d, _ = nearest_distances(obs, pts, tree=kdtree(obs))
-    return _weighted_share(w, d <= tolerance)
+    return [_weighted_share(w, d <= t) for t in tolerances]
 
 
 def dbh(skeleton: Skeleton, *, breast_height: float = 1.3) -> float | None:

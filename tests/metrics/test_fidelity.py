@@ -102,17 +102,19 @@ def test_skeleton_support_brute_force(rng):
     t = random_tree(rng, 6)
     obs = t.positions[rng.random(len(t)) < 0.5] + rng.normal(0, 0.01, (1, 3))
     tol = 0.015
-    got = skeleton_support(t, obs, tolerance=tol, step=0.002)
+    got, loose = skeleton_support(t, obs, tolerances=(tol, 1.0), step=0.002)
+    assert loose == pytest.approx(1.0)
     pts, _ = sample_skeleton(t, 0.002)
     w = sample_weights(t, 0.002, volume=False)
     d = np.array([np.min(np.linalg.norm(obs - x, axis=1)) for x in pts])
     assert got == pytest.approx(w[d <= tol].sum() / w.sum())
     # a branch through empty space counts against: the whole skeleton near the points scores 1
-    assert skeleton_support(t, sample_skeleton(t, 0.002)[0], tolerance=tol) == pytest.approx(1.0)
-    assert skeleton_support(ONE, obs, tolerance=tol) is None and skeleton_support(EMPTY, obs, tolerance=tol) is None
-    assert skeleton_support(t, np.zeros((0, 3)), tolerance=tol) is None
+    assert skeleton_support(t, sample_skeleton(t, 0.002)[0], tolerances=(tol,)) == [pytest.approx(1.0)]
+    assert skeleton_support(ONE, obs, tolerances=(tol,)) is None
+    assert skeleton_support(EMPTY, obs, tolerances=(tol,)) is None
+    assert skeleton_support(t, np.zeros((0, 3)), tolerances=(tol,)) is None
     with pytest.raises(InputError):
-        skeleton_support(t, obs, tolerance=0.0)
+        skeleton_support(t, obs, tolerances=(0.0,))
 
 
 def test_median_spacing_brute_force(rng):
