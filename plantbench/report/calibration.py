@@ -142,6 +142,7 @@ def ladder_means(table, metrics: list[str]):
 
 
 def _fmt(v: float) -> str:
+    """Three decimals (a count or a large distance: none)."""
     if not np.isfinite(v):
         return "-"
     return f"{v:.3f}" if abs(v) < 100 else f"{v:.0f}"
@@ -161,7 +162,10 @@ def calibration_markdown(table, verdict, *, header: str = "", headline: tuple[st
              "last rung must be worse than gt).", ""]
     if headline:
         lines += ["Headline fidelity metrics (`plantbench metrics --headline`): "
-                  + ", ".join(f"`{m}`" for m in headline) + ".", ""]
+                  + ", ".join(f"`{m}`" for m in headline) + ". The headline's GT-free column, "
+                  "`support.skeleton@1%`, is not a fidelity metric and is not meant to pass: it asks only whether the "
+                  "skeleton lies where the capture saw something, so it cannot see missing branches (pruning) and it "
+                  "is what a real capture without ground truth allows.", ""]
     key = list(headline) + [m for m in ("stava.S_T", "mesh_to_surface.D_cm", "leaves.accuracy", "leaves.f1",
                                          "skeleton.f1@1.0", "surface.all.fscore@2%", "reprojection.iou",
                                          "support.skeleton@1%") if m not in headline]
@@ -171,6 +175,16 @@ def calibration_markdown(table, verdict, *, header: str = "", headline: tuple[st
     for metric, row in means.iterrows():
         lines.append(f"| {metric} | " + " | ".join(_fmt(v) for v in row) + " |")
     checks = [c for c in verdict.columns if c not in ("metric", "higher_is_better", "plants", "passed", "verdict")]
+    failing = verdict[(verdict["verdict"] != "discriminates") & verdict["metric"].isin(means.index)]
+    if len(failing):
+        lines += ["", "## Why the older columns are not headline metrics", ""]
+        for d in failing.to_dict("records"):
+            missed = ", ".join(f"{c} on {int(d[c])}/{n}" for c in checks if int(d[c]) < n)
+            m = means.loc[d["metric"]]
+            lines.append(f"- `{d['metric']}`: {missed} plants (means: orders<=2 {_fmt(m.get('orders<=2', np.nan))}, "
+                         f"orders<=1 {_fmt(m.get('orders<=1', np.nan))}, jitter 0.5 % "
+                         f"{_fmt(m.get('jitter-0.5%', np.nan))}, priors {_fmt(m.get('prior-a', np.nan))} and "
+                         f"{_fmt(m.get('prior-b', np.nan))}).")
     lines += ["", "## Verdict per metric", "",
               "Counts are plants passing each check (of " + str(n) + ").", "",
               "| metric | dir | " + " | ".join(checks) + " | all | verdict |", "|---" * (len(checks) + 4) + "|"]
