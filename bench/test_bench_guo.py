@@ -1,7 +1,7 @@
-"""guo speed on 300k points (the size of seed 000 Table 2's clouds): a full-size Maple's branch and leaf surfaces
-sampled area-uniformly, through reconstruct_guo (ground, Eq. 8 weights, roots, markers, growth, leaves, refinement,
-meshing), beside a bare scipy cKDTree build + 48-nearest-neighbour query of the same points (the query the Eq. 8
-weights need) for scale. Target: <= 60 s per plant (analysis-by-synthesis excluded)."""
+"""guo speed on 300k points (the size of the clouds of Guo et al. 2018, Table 2): a full-size Maple's branch and leaf
+surfaces sampled area-uniformly, through reconstruct_guo (ground, Eq. 8 weights, roots, markers, growth, leaves,
+refinement, meshing), beside a bare scipy cKDTree build + 48-nearest-neighbour query of the same points (the query the
+Eq. 8 weights need) for scale. Target: <= 60 s per plant (analysis-by-synthesis excluded)."""
 
 import numpy as np
 import pytest

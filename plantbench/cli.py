@@ -528,7 +528,8 @@ def qsm_import(
 
 @app.command("species")
 def species_cmd(
-    stats: Annotated[bool, typer.Option("--stats", help="Grow each species and compare with seed 000 Table 2.")] = False,
+    stats: Annotated[bool, typer.Option(
+        "--stats", help="Grow each species and compare with Guo et al. 2018, Table 2.")] = False,
 ) -> None:
     """List the species library."""
     from rich.table import Table

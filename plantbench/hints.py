@@ -1,6 +1,6 @@
 """The species hint: the one piece of prior knowledge a method may receive (DESIGN.md section 3).
 
-A hint is what a user of Guo et al. knows about a species before looking at the data: seed 000's Table 2 columns
+A hint is what a user of Guo et al. 2018 knows about a species before looking at the data: its Table 2 columns
 (internode length l, roll angle phi, branching angle psi, diameter coefficient gamma; the growth units rho are
 computed from the data), whether it grows several stems, the mean leaf length and the leaf arrangement, each with
 its source. One published file per species under ``scenes/hints/``, separate from the generator's species files,

@@ -6,7 +6,7 @@ from the station (plus two steps of margin; a real scanner sweeps the full spher
 plant return nothing here because the ground is not scanned). Each beam is cast against the plant's branch and leaf
 meshes, so occlusion is real; the first hit within ``max_range`` returns, its range gets Gaussian noise of sigma
 ``range_noise``, and the return is lost with probability ``dropout``. Every point keeps its ground-truth label
-(0 wood, 1 leaf), leaf id (-1 for wood) and station index. Xu et al. (seed 006) reconstruct from a single scan, the
+(0 wood, 1 leaf), leaf id (-1 for wood) and station index. Xu et al. 2007 reconstruct from a single scan, the
 default here.
 """
 

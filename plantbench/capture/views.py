@@ -1,7 +1,7 @@
 """Multi-view capture: camera placement, path-traced colour, and exact per-pixel ground truth.
 
 - :func:`place_cameras`: ``n`` views on a Fibonacci band between two elevations (equal-area in the band, golden
-  angle in azimuth: seed 000's "views spread uniformly around the plant"), all aimed at the centre of the plant's
+  angle in azimuth: Guo et al. 2018's "views spread uniformly around the plant"), all aimed at the centre of the plant's
   bounding box, each at the distance where the plant's projection just fills ``fill`` of the frame.
 - :func:`render_colour`: Mitsuba's path tracer (one scene with a sensor per view, rendered view by view).
 - :func:`exact_maps`: one ray through each pixel centre of the canonical OpenCV camera (no anti-aliasing), cast

@@ -1,4 +1,4 @@
-"""Writing a case's ``plant/`` folder and comparing the species library with seed 000 Table 2."""
+"""Writing a case's ``plant/`` folder and comparing the species library with Guo et al. 2018, Table 2."""
 
 from __future__ import annotations
 
@@ -96,8 +96,8 @@ def generate_case(species: str, seed: int, case_dir: str | os.PathLike, *, scale
 
 
 def species_stats(names: list[str] | None = None, seeds=(0, 1, 2), *, scale: float = 1.0) -> list[dict]:
-    """Per species: generated H (m), |B| and l_B (m), means over ``seeds``, beside seed 000 Table 2 (None where the
-    species is not in the table). Also the spread over seeds (``*_sd``) and the relative errors (``*_err``)."""
+    """Per species: generated H (m), |B| and l_B (m), means over ``seeds``, beside Guo et al. 2018, Table 2 (None where
+    the species is not in the table). Also the spread over seeds (``*_sd``) and the relative errors (``*_err``)."""
     from plantbench.species import load_species, species
 
     rows = []

@@ -1,7 +1,7 @@
 """Self-organising tree growth by space colonisation (Palubicki et al. 2009) with Borchert-Honda allocation.
 
 The plant is a set of metamers (nodes at internode ends); every node carries one lateral bud (rolled by phi from
-the previous one, at psi from the axis: seed 000's L-system 1) and every axis ends in an apical bud. One growth
+the previous one, at psi from the axis: L-system 1 of Guo et al. 2018) and every axis ends in an apical bud. One growth
 cycle:
 
 1. markers inside any node's occupancy sphere (radius rho) are removed;
@@ -89,7 +89,7 @@ class GrowthResult:
     headings: np.ndarray
     iterations: int
     growth_units: float
-    """Mean metamers per shoot per cycle (seed 000's rho, derived)."""
+    """Mean metamers per shoot per cycle (rho of Guo et al. 2018, derived)."""
     markers_left: int
 
 

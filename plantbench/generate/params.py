@@ -2,16 +2,16 @@
 
 Groups:
 
-- ``table1``: the five-parameter model of seed 000 (Table 1): internode length l, roll angle phi, branching angle
+- ``table1``: the five-parameter model of Guo et al. 2018 (Table 1): internode length l, roll angle phi, branching angle
   psi, diameter coefficient gamma (Eq. 5). The fifth, growth units rho (internodes per shoot per cycle), is not
   set: it emerges from Borchert-Honda allocation and is reported in plant.json (``parameters.derived``).
-- ``reference``: the species' seed 000 Table 2 statistics (H, |B|, l_B), when the species is in that table.
+- ``reference``: the species' statistics in Guo et al. 2018, Table 2 (H, |B|, l_B), when the species is in that table.
 - ``envelope``: the crown volume filled with markers (Weber-Penn shape ratio).
 - ``growth``: Palubicki et al. 2009 self-organisation (perception cone, occupancy, apical control, tropism,
   shedding).
 - ``roots``: number and placement of stems (Cercis is a multi-stem shrub).
 - ``wood``: branch radii and tube tessellation.
-- ``leaves``: arrangement, size, per-leaf variation and the 21 Bezier leaf parameters (seed 001).
+- ``leaves``: arrangement, size, per-leaf variation and the 21 Bezier leaf parameters (Chaurasia and Beardsley 2017).
 
 Every numeric field has bounds, so an out-of-range value is reported as ``file: field: Input should be ...``.
 """
@@ -44,7 +44,7 @@ Shape = Literal["conical", "spherical", "hemispherical", "cylindrical", "tapered
 
 
 class Table1(Strict):
-    """Seed 000 Table 1 (the growth units rho are derived, not set)."""
+    """Guo et al. 2018, Table 1 (the growth units rho are derived, not set)."""
 
     internode_length: float = Field(ge=0.005, le=0.5, description="l, metres: length of one internode (metamer)")
     roll_angle: float = Field(ge=0, le=360, description="phi, degrees: roll of the lateral bud between successive nodes")
@@ -53,9 +53,9 @@ class Table1(Strict):
 
 
 class Reference(Strict):
-    """Seed 000 Table 2 statistics of the reconstructed plant (what generated plants are compared with)."""
+    """Guo et al. 2018, Table 2: statistics of the reconstructed plant (what generated plants are compared with)."""
 
-    figure: str = Field(default="", description="where the plant appears in seed 000")
+    figure: str = Field(default="", description="where the plant appears in Guo et al. 2018")
     height: float = Field(gt=0, le=100, description="H, metres")
     branches: int = Field(gt=0, le=10**6, description="|B|: unbranched chains between junctions or tips")
     mean_branch_length: float = Field(gt=0, le=100, description="l_B, metres")
@@ -151,7 +151,8 @@ class Leaves(Strict):
     shape_jitter: float = Field(default=0.03, ge=0, le=0.3, description="sd of the bend/fold/curl parameters")
     roll_sd: float = Field(default=15, ge=0, le=90, description="sd of the blade roll about its axis, degrees")
     resolution: tuple[Annotated[int, Field(ge=1, le=32)], Annotated[int, Field(ge=2, le=64)]] = Field(default=(3, 6), description="tessellation (segments across each half, along)")
-    shape: LeafShape = Field(default_factory=LeafShape, description="mean Bezier leaf (seed 001, 21 parameters)")
+    shape: LeafShape = Field(default_factory=LeafShape,
+                             description="mean Bezier leaf (Chaurasia and Beardsley 2017, 21 parameters)")
 
 
 class SpaceColonisationSpecies(Strict):
@@ -162,7 +163,8 @@ class SpaceColonisationSpecies(Strict):
     display_name: str = Field(min_length=1)
     description: str = ""
     habit: str = Field(default="", description="growth habit in words (upright, spreading, shrubby ...)")
-    reference: Reference | None = Field(default=None, description="seed 000 Table 2 row, if the species has one")
+    reference: Reference | None = Field(default=None,
+                                        description="row of Guo et al. 2018, Table 2, if the species has one")
     table1: Table1
     envelope: Envelope
     growth: Growth = Field(default_factory=Growth)

@@ -1,4 +1,4 @@
-"""The Bezier leaf of Chaurasia and Beardsley (ICCV 2017, seed 001, Eq. 1-6): 21 parameters, vectorised.
+"""The Bezier leaf of Chaurasia and Beardsley 2017 (ICCV, Eq. 1-6): 21 parameters, vectorised.
 
 A leaf is described by four Bezier curves in a unit leaf frame whose base is at the origin and apex at
 ``(1, 0, 0)`` (plantbench's leaf convention, see :class:`plantbench.plant.Leaf`: the blade axis runs along +x,

@@ -1,7 +1,7 @@
 """Branch geometry shared by every generator family: radii, node frames and generalised-cylinder tubes.
 
-- :func:`supported_length_radii`: seed 000 Eq. 5, d_c = d_p (l_c / sum_j l_cj)^gamma, with l the branch length a
-  node supports, applied at every node (so chains taper smoothly), anchored at a twig radius.
+- :func:`supported_length_radii`: Eq. 5 of Guo et al. 2018, d_c = d_p (l_c / sum_j l_cj)^gamma, with l the branch length
+  a node supports, applied at every node (so chains taper smoothly), anchored at a twig radius.
 - :func:`node_frames`: a tangent and a parallel-transported normal per node (transport by projection, level by
   level from the roots), continuous along each axis.
 - :func:`tube_mesh`: one ring per node (on its axis) plus one start ring per lateral at the parent node (inside
@@ -90,7 +90,7 @@ def supported_length_radii(positions: np.ndarray, parents: np.ndarray, *, gamma:
                            internode_length: float) -> np.ndarray:
     """(n,) radii r = tip_radius (L / l)^gamma with L the supported length (Eq. 5 at every node).
 
-    At a junction the children's radii relate as in seed 000 Eq. 5; along a chain the radius shrinks with the
+    At a junction the children's radii relate as in Guo et al. 2018, Eq. 5; along a chain the radius shrinks with the
     length still supported. Radii are never larger than the parent's and never below ``tip_radius / 2``.
     """
     sup = supported_lengths(positions, parents)

@@ -108,7 +108,8 @@ def move_leaves(plant: Plant, fraction: float, rng: np.random.Generator) -> Plan
 
 def other_species(species: str) -> str:
     """The species after ``species`` among the library's species of the same family, by name (cyclic)."""
-    from plantbench.species import load_species, species as library
+    from plantbench.species import load_species
+    from plantbench.species import species as library
 
     family = load_species(species).family
     same = [n for n in library.names() if load_species(n).family == family]

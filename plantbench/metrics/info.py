@@ -42,13 +42,15 @@ for _v, _what in (("stava", "with split/merge of chains"), ("stava_nosplit", "pl
     _add(f"{_v}.d_G", "", False, f"Stava geometric distance (20 branch-statistics descriptors), {_what}")
     _add(f"{_v}.d_T", "", False, f"Stava structural distance (normalised constrained tree edit distance), {_what}")
 
-_add("mesh_to_scan.D_cm", "cm", False, "mean distance, reconstructed mesh vertex -> nearest scan point (seed 000 D)")
-_add("mesh_to_scan.sigma_cm", "cm", False, "std of vertex -> nearest scan point distance (seed 000 sigma)")
+_add("mesh_to_scan.D_cm", "cm", False,
+     "mean distance, reconstructed mesh vertex -> nearest scan point (Guo et al. 2018, D)")
+_add("mesh_to_scan.sigma_cm", "cm", False, "std of vertex -> nearest scan point distance (Guo et al. 2018, sigma)")
 _add("mesh_to_scan.reverse_D_cm", "cm", False, "mean distance, scan point -> reconstructed surface")
 _add("mesh_to_scan.reverse_sigma_cm", "cm", False, "std of scan point -> reconstructed surface distance")
 _add("mesh_to_scan.area_D_cm", "cm", False, "mean distance, area-uniform sample of the reconstruction -> scan point")
 _add("mesh_to_scan.symmetric_cm", "cm", False, "(area_D + reverse_D) / 2")
-_add("mesh_to_surface.D_cm", "cm", False, "seed 000 D against a perfect scan: mean exact distance, reconstructed vertex -> GT surface")
+_add("mesh_to_surface.D_cm", "cm", False,
+     "D of Guo et al. 2018 against a perfect scan: mean exact distance, reconstructed vertex -> GT surface")
 _add("mesh_to_surface.sigma_cm", "cm", False, "std of exact vertex -> ground-truth surface distance")
 
 _add("reprojection.error", "", False, "Guenard Eq. 3: |render XOR reference mask| / |reference mask|, mean over views")
@@ -69,7 +71,7 @@ for _k in ("precision", "recall", "f1"):
     _add(f"leaves.strict_{_k}", "", True, f"strict leaf detection {_k} (centroids within half the median GT leaf "
                                            "spacing)")
 
-_add("points.count", "", None, "number of points in the method's points.ply (seed 000 |P|)")
+_add("points.count", "", None, "number of points in the method's points.ply (Guo et al. 2018, |P|)")
 for _src, _what in (("points", "the method's points.ply"), ("surface", "an area-uniform sample of mesh.ply")):
     for _part in ("all", "wood", "foliage"):
         _pre = f"{_src}.{_part}"
@@ -93,12 +95,12 @@ for _f in HEIGHT_FRACTIONS:
 for _f in HEIGHT_FRACTIONS:
     _add(f"support.skeleton@{tau_label(_f)}", "", True,
          f"GT-free: share of skeleton length within {tau_label(_f)} of the observed height of an observed point")
-_add("skeleton.branch_count", "", None, "reconstructed branch count (unbranched chains; seed 000 |B|)")
+_add("skeleton.branch_count", "", None, "reconstructed branch count (unbranched chains; Guo et al. 2018, |B|)")
 _add("skeleton.branch_count_rel_error", "", False, "|branch count - GT| / GT")
 _add("skeleton.total_length_m", "m", None, "reconstructed total branch length")
 _add("skeleton.total_length_rel_error", "", False, "|total branch length - GT| / GT")
-_add("skeleton.mean_branch_length_m", "m", None, "reconstructed mean branch length (seed 000 l_B)")
-_add("skeleton.height_m", "m", None, "reconstructed skeleton height (seed 000 H)")
+_add("skeleton.mean_branch_length_m", "m", None, "reconstructed mean branch length (Guo et al. 2018, l_B)")
+_add("skeleton.height_m", "m", None, "reconstructed skeleton height (Guo et al. 2018, H)")
 _add("skeleton.height_error_m", "m", False, "|height - GT height|")
 _add("skeleton.dbh_cm", "cm", None, "reconstructed diameter at breast height (1.3 m)")
 _add("skeleton.dbh_error_cm", "cm", False, "|DBH - GT DBH|")

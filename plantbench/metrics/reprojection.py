@@ -1,4 +1,4 @@
-"""Reprojection error (Guenard et al., seed 003 Eq. 3) and silhouette IoU.
+"""Reprojection error (Guenard et al. 2014, Eq. 3) and silhouette IoU.
 
 Per view i: error_i = #(rendered XOR reference) / #(reference), the reference being the ground-truth plant mask
 (instance map > 0) and the rendered mask the reconstruction's silhouette seen by the same camera; reported as the

@@ -1,4 +1,5 @@
-"""Mesh-to-scan distance (seed 000 Table 3) and the surface sampling / nearest-neighbour helpers other metrics use.
+"""Mesh-to-scan distance (Guo et al. 2018, Table 3) and the surface sampling / nearest-neighbour helpers that
+other metrics use.
 
 D and sigma: mean and standard deviation of the distance from each reconstructed mesh vertex to its nearest
 ground-truth point (the case's scan, or a dense area-uniform sample of the ground-truth surface when there is no
@@ -123,9 +124,9 @@ class MeshToScan:
     """Mesh-to-scan distances in centimetres (None where the direction has nothing to measure)."""
 
     D_cm: float | None
-    """mean distance, reconstructed vertex -> nearest ground-truth point (seed 000 Table 3 D)"""
+    """mean distance, reconstructed vertex -> nearest ground-truth point (Guo et al. 2018, Table 3, D)"""
     sigma_cm: float | None
-    """standard deviation of those distances (seed 000 Table 3 sigma)"""
+    """standard deviation of those distances (Guo et al. 2018, Table 3, sigma)"""
     reverse_D_cm: float | None
     """mean distance, ground-truth point -> reconstructed surface (exact point-to-triangle)"""
     reverse_sigma_cm: float | None

@@ -220,7 +220,7 @@ def ladder_figure(table, metrics: list[str], path: str | os.PathLike) -> Path:
         kind = [r.split("-")[0].split("<")[0] for r in rungs]  # lines join rungs of one kind only
         breaks = [i for i in range(1, len(rungs)) if kind[i] != kind[i - 1] and kind[i - 1] != "gt"]
 
-        def gapped(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        def gapped(values: np.ndarray, breaks: list[int] = breaks) -> tuple[np.ndarray, np.ndarray]:
             return np.insert(x.astype(float), breaks, np.nan), np.insert(values.astype(float), breaks, np.nan)
 
         for _, row in data.iterrows():

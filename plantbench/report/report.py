@@ -15,8 +15,8 @@ import numpy as np
 
 from plantbench.errors import InputError, PlantbenchError
 from plantbench.io.atomic import atomic_write
-from plantbench.report.gate import read_results, read_run_meta
 from plantbench.metrics.info import HEADLINE_FIDELITY
+from plantbench.report.gate import read_results, read_run_meta
 from plantbench.report.tables import HEADLINE, KEY_METRICS, aggregate, format_value, metric_info
 
 __all__ = ["FORMATS", "wide_table", "headline_table", "comparison_table", "render_table", "write_report",
@@ -27,10 +27,10 @@ STUDY_METRICS = ("stava.S_T", "mesh_to_surface.D_cm", "reprojection.error", "ske
 
 FORMATS = ("md", "latex", "csv", "html")
 
-# seed 000 Table 3 columns, then ours. D and sigma are the paper's vertex -> nearest-ground-truth-point distance with
-# the ground truth a perfect scan: the exact distance to the GT surface (mesh_to_surface). The simulated scan of the
-# case misses what its stations cannot see, so against it even the gt oracle scores D > 0 (1.3 cm on the quick
-# suite's 1-station scan); that distance is the "D scan" column.
+# The columns of Guo et al. 2018, Table 3, then ours. D and sigma are the paper's vertex -> nearest-ground-truth-point
+# distance with the ground truth a perfect scan: the exact distance to the GT surface (mesh_to_surface). The simulated
+# scan of the case misses what its stations cannot see, so against it even the gt oracle scores D > 0 (1.3 cm on the
+# quick suite's 1-station scan); that distance is the "D scan" column.
 PAPER_COLUMNS = (
     ("|P|", "points.count"),
     ("H", "skeleton.height_m"),

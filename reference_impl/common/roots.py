@@ -44,8 +44,8 @@ def find_roots(positions: np.ndarray, heights: np.ndarray, graph: sp.csr_matrix,
     into the connected components of ``graph``; components holding at least ``min_fraction`` of the largest one's
     vertices and lying within ``central_fraction`` of the plant's crown radius (90th percentile of the horizontal
     distances from its median x, y) of its centre are stem bases (at most ``max_roots``), each rooted at its lowest
-    vertex. Leaves hanging down to the ground at the crown's rim are thus not taken for stems [S: seed 002's user
-    picks the root; a leafy shrub scanned from one side may show low leaves and no stem base]. When no slab
+    vertex. Leaves hanging down to the ground at the crown's rim are thus not taken for stems [S: in Xu et al. 2007 the
+    user picks the root; a leafy shrub scanned from one side may show low leaves and no stem base]. When no slab
     component is central, the root is the plant's lowest vertex within that central radius (the occluded stem's
     lowest visible part), else its lowest vertex.
     """

@@ -1,22 +1,22 @@
-"""guo: the reference method, Guo et al. "Realistic Procedural Plant Modeling from Multiple View Images" (seed 000
-section 5, with the SIGGRAPH 2017 poster, seed 004): point-cloud-guided procedural growth. A registered ``points``
-method: it reads the ``mvs`` stage's fused cloud for view captures, or a scan's coordinates.
+"""guo: the reference method, Guo et al. 2018, "Realistic Procedural Plant Modeling from Multiple View Images"
+(section 5, with the SIGGRAPH 2017 poster, Guo et al. 2017): point-cloud-guided procedural growth. A registered
+``points`` method: it reads the ``mvs`` stage's fused cloud for view captures, or a scan's coordinates.
 
 Modules: :mod:`.params` (constants with sources, species prior), :mod:`.weights` (Eq. 8), :mod:`.roots` (density
 roots, trunk cross-section), :mod:`.hull` (Fig. 8 occluded crowns), :mod:`.growth` (L-system 1, space colonisation,
 Eq. 5-7, 9, shedding), :mod:`.refine` (collapse, Hermite smoothing), :mod:`.pipeline` (the whole method on a cloud),
-:mod:`.abs` (analysis-by-synthesis, seed 003 Eq. 3-4).
+:mod:`.abs` (analysis-by-synthesis, Guenard et al. 2014, Eq. 3-4).
 
 Options (a suite's ``[method_options.guo]``): every :class:`~reference_impl.guo.params.GuoParams` field by name,
 plus ``prior`` (True: the species hint's parameters; False: generic defaults, to measure what the prior buys) and
 ``leaves`` ('auto', the default: 'combined' when ``capture_dir/depth`` holds the mvs stage's depth maps, as the
 runner provides for view captures with known poses, else 'procedural'; 'procedural': leaves placed per the species
 library, turned onto the cloud and kept where the cloud supports them; 'segment': the leaves that
-:mod:`reference_impl.leaves` segments and fits from the views (seed 001), which needs ``capture_dir/views``;
-'combined': those fitted leaves plus the procedural leaves they do not cover), ``leaf_depth`` (the depth maps the
-leaves are segmented on: 'mvs', the default, ``capture_dir/depth`` or, without it, maps estimated here; 'oracle',
-the capture's exact depth, an upper bound) and ``leaf__NAME`` for any :class:`~reference_impl.leaves.LeafParams`
-field. ``candidates=k`` (k > 1) turns on analysis-by-synthesis, which
+:mod:`reference_impl.leaves` segments and fits from the views (Chaurasia and Beardsley 2017), which needs
+``capture_dir/views``; 'combined': those fitted leaves plus the procedural leaves they do not cover), ``leaf_depth``
+(the depth maps the leaves are segmented on: 'mvs', the default, ``capture_dir/depth`` or, without it, maps estimated
+here; 'oracle', the capture's exact depth, an upper bound) and ``leaf__NAME`` for any
+:class:`~reference_impl.leaves.LeafParams` field. ``candidates=k`` (k > 1) turns on analysis-by-synthesis, which
 needs ``capture_dir/views``.
 """
 

@@ -1,4 +1,4 @@
-"""Analysis-by-synthesis option (seed 003, Guenard et al., Eq. 3-4) for guo.
+"""Analysis-by-synthesis option (Guenard et al. 2014, Eq. 3-4) for guo.
 
 Grow k candidates from one preparation of the cloud, with varied Table 1 parameters (l, phi, psi drawn around the
 prior with relative standard deviation ``candidate_jitter``; candidate 0 is the prior itself) and their own random

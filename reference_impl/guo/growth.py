@@ -1,4 +1,4 @@
-"""Point-cloud-guided growth (seed 000 section 5.2, L-system 1; seed 004 section 2.2).
+"""Point-cloud-guided growth (Guo et al. 2018, section 5.2, L-system 1; Guo et al. 2017, section 2.2).
 
 L-system 1: a seed at each root becomes the apical bud A(p, v) of a stem, heading up. In a growth cycle a bud with
 markers in its perception volume emits a shoot, a chain of n metamers: metamer i starts where metamer i - 1 ends
@@ -7,19 +7,20 @@ the lateral bud, not the main direction); each metamer ends in a lateral bud L a
 (v' = R_psi(v)); the apical bud closes the chain. A lateral bud becomes the apical bud of a new axis from the next
 cycle on.
 
-Space colonisation (Palubicki et al. 2009, with seed 000's three adaptations):
+Space colonisation (Palubicki et al. 2009, with Guo et al. 2018's three adaptations):
 
 - markers are the cloud's points (merged per half-internode voxel, see :class:`~reference_impl.guo.params.GuoParams`)
   plus, for an occluded crown, Poisson-disk samples of its convex hull; every marker carries its Eq. 8 weight;
 - each bud has a perception cone (opening theta = 90 deg, radius d_i) and an occupancy sphere (kill distance
   d_k = 0.5 d_i); a marker inside several cones goes to the closest bud (roots compete for the same markers);
-- d_i = rho_t l (seed 000) or floor(rho_t) l (seed 004) from the logistic model: H_t = H_max / (1 + (H_max / H_0 -
-  1) exp(-rho_0 t)) (Eq. 6) in internodes, H_max = K (K l = the plant's height), rho_t = dH_t/dt (Eq. 7);
+- d_i = rho_t l (Guo et al. 2018) or floor(rho_t) l (Guo et al. 2017) from the logistic model:
+  H_t = H_max / (1 + (H_max / H_0 - 1) exp(-rho_0 t)) (Eq. 6) in internodes, H_max = K (K l = the plant's height),
+  rho_t = dH_t/dt (Eq. 7);
 - growth direction Eq. 9: V_A = V_default + alpha V_opt + beta V_tropism, V_opt the weighted mean of the unit
   vectors from the bud to its markers (weights w_i of Eq. 8);
 - the shoot has rho_t metamers (the growth units, Table 1), but stops at the weighted centroid of its markers (the
   growing distance of space colonisation, section 5.2), and at least one;
-- bud fate (Palubicki's Borchert-Honda allocation, which seed 000 inherits with the space colonisation): the
+- bud fate (Palubicki's Borchert-Honda allocation, which Guo et al. 2018 inherit with the space colonisation): the
   resource alpha x (lit buds) is shared in proportion to each lit bud's perceived marker weight, and a lateral bud
   whose share is below one metamer stays dormant (``lateral_vigour``);
 - gaps (our addition, for clouds with unreconstructed parts): when no bud perceives a marker while markers remain,
@@ -61,7 +62,7 @@ def growth_units(t: float | np.ndarray, h_max: float, h0: float, rho0: float) ->
 
 
 def influence_distance(t: int, k_internodes: float, ell: float, params: GuoParams) -> tuple[float, float]:
-    """(rho used, d_i) at cycle t: rho_t of Eq. 7 (its integer part with ``integer_rho``, seed 004), clamped to
+    """(rho used, d_i) at cycle t: rho_t of Eq. 7 (its integer part with ``integer_rho``, Guo et al. 2017), clamped to
     [rho_min, rho_max]; d_i = rho l."""
     k = max(float(k_internodes), params.h0 + 1.0)
     rho = float(growth_units(t, k, params.h0, params.rho0))

@@ -1,4 +1,4 @@
-"""Occluded crowns (seed 000 section 6.1, Fig. 8): extra markers inside the crown's convex hull.
+"""Occluded crowns (Guo et al. 2018, section 6.1, Fig. 8): extra markers inside the crown's convex hull.
 
 "First, we compute the convex hull of the crown using the reconstructed 3D points. Then we perform Poisson-disk
 sampling [66] to generate randomly and uniformly distributed points in the interior of the convex hull. Guided by

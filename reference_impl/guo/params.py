@@ -1,15 +1,15 @@
-"""Parameters of the Guo et al. reference (seed 000 section 5, seed 004) and the species prior.
+"""Parameters of the Guo et al. reference (Guo et al. 2018, section 5; Guo et al. 2017) and the species prior.
 
 Two kinds of parameters:
 
-- :class:`GuoParams`: the method's constants, each with its source ([P] seed 000's text, [P4] seed 004, [Pal]
-  Palubicki et al. 2009 as quoted in seed 000 section 5.2, [S] our choice where the paper gives no value; lengths
-  that the paper states in metres are for its clouds "scaled into a 10 m x 10 m x 10 m bounding box" (section 6.1)
-  and are scaled here by the plant's size / 10 m).
+- :class:`GuoParams`: the method's constants, each with its source ([P] the text of Guo et al. 2018, [P4]
+  Guo et al. 2017, [Pal] Palubicki et al. 2009 as quoted in Guo et al. 2018, section 5.2, [S] our choice where the
+  paper gives no value; lengths that the paper states in metres are for its clouds "scaled into a 10 m x 10 m x 10 m
+  bounding box" (section 6.1) and are scaled here by the plant's size / 10 m).
 - :class:`SpeciesPrior`: the species library entry (Table 1: internode length l, roll phi, branching angle psi,
   diameter coefficient gamma; number of stems; twig radius; leaves), built from a species TOML by
-  :func:`prior_from_species`, or :data:`GENERIC_PRIOR` (the run without the species hint: the means of seed 000
-  Table 2's six species, generic leaves, stems counted from the cloud).
+  :func:`prior_from_species`, or :data:`GENERIC_PRIOR` (the run without the species hint: the means of the six
+  species of Guo et al. 2018, Table 2, generic leaves, stems counted from the cloud).
 """
 
 from __future__ import annotations
@@ -54,12 +54,13 @@ class GuoParams:
     rho0: float = 0.3
     """rho_0 of Eq. 6-7 [P]."""
     integer_rho: bool = False
-    """Use the integer part of rho_t for d_i and the shoot length (seed 004) instead of rho_t (seed 000) [P4]."""
+    """Use the integer part of rho_t for d_i and the shoot length (Guo et al. 2017) instead of rho_t
+    (Guo et al. 2018) [P4]."""
     rho_min: float = 6.0
-    """d_i is at least rho_min * l: Eq. 7 starts at rho_0 H_0 (1 - H_0/K) < 1 internode (0 with seed 004's integer
-    part), which would stall the first cycles. 6 lies in the range d_i in [4 l, 12 l] that section 5.2 quotes and
-    is the top of Palubicki's perception radius (4-6 internodes); with 4 the kill distance (2 l) leaves leaf points
-    around every twig alive and the skeleton grows ~2x too many branches (maple: S_T 0.39 vs 0.53) [S]."""
+    """d_i is at least rho_min * l: Eq. 7 starts at rho_0 H_0 (1 - H_0/K) < 1 internode (0 with the integer part of
+    Guo et al. 2017), which would stall the first cycles. 6 lies in the range d_i in [4 l, 12 l] that section 5.2
+    quotes and is the top of Palubicki's perception radius (4-6 internodes); with 4 the kill distance (2 l) leaves
+    leaf points around every twig alive and the skeleton grows ~2x too many branches (maple: S_T 0.39 vs 0.53) [S]."""
     rho_max: float = 12.0
     """d_i is at most rho_max * l: the top of the same typical range [S, bound from Pal]."""
     alpha: float = 1.6
@@ -143,8 +144,8 @@ class GuoParams:
     ("distributed at the tip nodes", section 5.3); 0 puts them on every thin node, the generator's rule [S]."""
     leaf_fit: bool = True
     """Turn each procedural leaf about its base into the cloud around it (blade normal = the local points' smallest
-    principal direction), the data-driven part of the leaf configuration of seed 000's [40] [P: "considering ...
-    the normal direction"; S: the rule]."""
+    principal direction), the data-driven part of the leaf configuration of ref. [40] of Guo et al. 2018
+    [P: "considering ... the normal direction"; S: the rule]."""
 
     leaf_support: float = 1.5
     """A leaf is kept only when the mean distance from its blade's vertices to the cloud is at most this many median
@@ -156,7 +157,7 @@ class GuoParams:
     """After fitting, a leaf whose blade centre lies within half a leaf length of a better-supported kept leaf's is
     dropped: several procedural leaves snapped onto the same observed leaf count once [S]."""
 
-    # --- analysis-by-synthesis (seed 003 Eq. 4)
+    # --- analysis-by-synthesis (Guenard et al. 2014, Eq. 4)
     candidates: int = 1
     """Candidates grown and scored against the input views; 1 disables analysis-by-synthesis."""
     candidate_jitter: float = 0.1
@@ -189,7 +190,7 @@ class SpeciesPrior:
 
 GENERIC_PRIOR = SpeciesPrior(
     name="generic",
-    internode_length=0.0485,   # mean l of seed 000 Table 2 (0.050, 0.038, 0.051, 0.049, 0.052, 0.051)
+    internode_length=0.0485,   # mean l of Guo et al. 2018, Table 2 (0.050, 0.038, 0.051, 0.049, 0.052, 0.051)
     roll_angle=104.8,          # mean phi (120, 97, 95, 130, 87, 100)
     branching_angle=37.2,      # mean psi (38, 37, 35, 34, 41, 38)
     diameter_coefficient=0.44,  # mean gamma (0.45, 0.50, 0.43, 0.42, 0.43, 0.41)

@@ -1,4 +1,4 @@
-"""The Guo et al. pipeline (seed 000 section 5, seed 004) as pure functions over a point cloud.
+"""The Guo et al. pipeline (Guo et al. 2018, section 5; Guo et al. 2017) as pure functions over a point cloud.
 
 1. ground removal (reference_impl.common.ground; a scan has ground hits, the mvs cloud has none) and removal of
    isolated points (distance to the 8th neighbour above 4 times the median) [S];

@@ -1,4 +1,4 @@
-"""Skeleton refinement after growth (seed 000 section 5.3).
+"""Skeleton refinement after growth (Guo et al. 2018, section 5.3).
 
 "(1) branch collapse. We traverse each node in the skeletal graph; if the degree of this node is 2 and its adjacent
 edges share similar orientations and radii, then we collapse this node to its parent node; (2) branch smooth. For a

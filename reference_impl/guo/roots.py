@@ -1,4 +1,4 @@
-"""Roots and trunk diameters (seed 000 section 5.3 and Fig. 9).
+"""Roots and trunk diameters (Guo et al. 2018, section 5.3 and Fig. 9).
 
 "We project the point cloud onto a 2D ground plane along the vertical axis, and measure the density of the
 projected points. Then we form a cluster of the points with higher density, and select the cluster centroid as the

@@ -1,10 +1,10 @@
-"""Point importance weights (seed 000 Eq. 8).
+"""Point importance weights (Guo et al. 2018, Eq. 8).
 
 Each point gets its main direction n_i, the eigenvector of the largest eigenvalue of the covariance of its
 neighbourhood (PCA), and a weight w_i = #{j : |p_i - p_j| < eps_D and |n_i . n_j| > eps_A}: the number of nearby
 points sharing its principal direction (the point itself included, so w_i >= 1). Points on branches, whose
 neighbourhoods are elongated along the branch, agree with their neighbours and weigh more than points on leaves,
-whose in-plane main directions scatter (seed 000 Fig. 6).
+whose in-plane main directions scatter (Guo et al. 2018, Fig. 6).
 
 The PCA neighbourhood is the same eps_D ball (at least ``min_neighbours`` points) [S: the paper does not give it;
 a fixed count of nearest neighbours on a densely sampled branch spans less than its diameter and gives a direction

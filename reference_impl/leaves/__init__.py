@@ -1,4 +1,4 @@
-"""Leaf segmentation from colour + depth and Bezier leaf fitting (seed 001, Chaurasia and Beardsley 2017).
+"""Leaf segmentation from colour + depth and Bezier leaf fitting (Chaurasia and Beardsley 2017).
 
 :func:`segment_and_fit` takes a view capture and per-view depth maps to fitted :class:`plantbench.plant.Leaf`
 instances (section 4.1: per-view superpixels, planes, affinity graph and enclosing-ellipse confidence; section 4.2:
@@ -66,8 +66,8 @@ def leaves_from_capture(capture_dir: Path, *, depth: str | Path = "mvs", seed: i
 
 
 class Leaves:
-    """Leaf instances from a view capture (seed 001): writes ``leaves.json``, ``points.ply`` (points on the fitted
-    leaf surfaces, with ``leaf_id``) and ``leaves_stats.json`` (skips per reason, timings).
+    """Leaf instances from a view capture (Chaurasia and Beardsley 2017): writes ``leaves.json``, ``points.ply`` (points
+    on the fitted leaf surfaces, with ``leaf_id``) and ``leaves_stats.json`` (skips per reason, timings).
 
     Options: ``depth`` (see :func:`leaves_from_capture`: ``"mvs"``, the default, ``"oracle"`` or a folder of
     per-view maps) and any :class:`LeafParams` field.

@@ -1,8 +1,9 @@
-"""Minimum-volume enclosing ellipses (Khachiyan 1996; seed 001 refs. [23, 26]), batched over point sets.
+"""Minimum-volume enclosing ellipses (Khachiyan 1996; Chaurasia and Beardsley 2017, refs. [23, 26]), batched
+over point sets.
 
-Seed 001 uses the 2D minimum-volume enclosing ellipse of a leaf's points three times: the candidate confidence
-(fraction of the ellipse the leaf fills, section 4.1), the base and apex (its major-axis ends, section 5.1) and the
-scanline occlusion weights (Eq. 10).
+Chaurasia and Beardsley 2017 use the 2D minimum-volume enclosing ellipse of a leaf's points three times: the candidate
+confidence (fraction of the ellipse the leaf fills, section 4.1), the base and apex (its major-axis ends, section 5.1)
+and the scanline occlusion weights (Eq. 10).
 """
 
 from __future__ import annotations

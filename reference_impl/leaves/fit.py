@@ -1,4 +1,5 @@
-"""Fitting the 21-parameter Bezier leaf to a segmented leaf point cloud (seed 001 section 5, Eq. 9-11).
+"""Fitting the 21-parameter Bezier leaf to a segmented leaf point cloud (Chaurasia and Beardsley 2017,
+section 5, Eq. 9-11).
 
 1. Axis alignment: the cloud's principal axes (SVD) give the leaf plane (normal = least variance, oriented to the
    ``up`` side: the upper side of a leaf faces the sky).

@@ -1,4 +1,4 @@
-"""Parameters of leaf segmentation and Bezier fitting (seed 001, Chaurasia and Beardsley 2017), one frozen dataclass.
+"""Parameters of leaf segmentation and Bezier fitting (Chaurasia and Beardsley 2017), one frozen dataclass.
 
 Lengths given as fractions scale with ``delta_plane`` (the paper's plane-fitting threshold), which itself scales with
 the leaf size: the paper's 2 cm is for its leaves, taken here to be ``reference_leaf_length`` long.
@@ -20,8 +20,8 @@ class LeafParams:
 
     # ---- scale
     delta_plane: float = 0.02
-    """Plane-fitting threshold delta_plane (seed 001 section 4.1: "typically 2 cm"), metres, for leaves of
-    ``reference_leaf_length``; used as RANSAC inlier distance, the unit of Eq. 7's 3D distance and the ICP
+    """Plane-fitting threshold delta_plane (Chaurasia and Beardsley 2017, section 4.1: "typically 2 cm"), metres, for
+    leaves of ``reference_leaf_length``; used as RANSAC inlier distance, the unit of Eq. 7's 3D distance and the ICP
     correspondence distance (section 4.2)."""
     reference_leaf_length: float = 0.10
     """Leaf length the paper's delta_plane is meant for (single-lobed beech/holly/cherry leaves; an assumption, the

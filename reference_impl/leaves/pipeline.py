@@ -1,4 +1,5 @@
-"""From a view capture (colour + per-view depth) to fitted Bezier leaves: seed 001 sections 4.1, 4.2 and 5.
+"""From a view capture (colour + per-view depth) to fitted Bezier leaves: Chaurasia and Beardsley 2017,
+sections 4.1, 4.2 and 5.
 
 :func:`segment_and_fit` is the entry point; :func:`write_leaves` writes its result as a method output
 (``leaves.json`` and the leaves' points as ``points.ply``).
@@ -176,7 +177,7 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
                     depth_dir: str | os.PathLike | None = None, oracle_depth: bool = False,
                     leaf_length_hint: float | None = None, seed: int, params: LeafParams = LeafParams(),
                     up=(0.0, 0.0, 1.0)) -> LeafFitResult:
-    """Segment leaves in a view capture and fit the Bezier leaf to each (seed 001).
+    """Segment leaves in a view capture and fit the Bezier leaf to each (Chaurasia and Beardsley 2017).
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""Scale-invariant refinement of candidate leaves across all views (seed 001 section 4.2).
+"""Scale-invariant refinement of candidate leaves across all views (Chaurasia and Beardsley 2017, section 4.2).
 
 1. Template: the ``template_leaves`` (50) most confident candidates of all views; the template is an ellipse whose
    major-to-minor axis ratio is their median length-to-width ratio (enclosing-ellipse axes), at unit length.

@@ -1,4 +1,5 @@
-"""Candidate leaves from each view independently (seed 001 section 4.1), vectorised over superpixels.
+"""Candidate leaves from each view independently (Chaurasia and Beardsley 2017, section 4.1), vectorised
+over superpixels.
 
 1. SLIC superpixels (scikit-image) on colour (Lab) and depth, over the pixels that have a depth.
 2. A RANSAC plane per superpixel (3-point hypotheses, inlier distance delta_plane, least-squares refit on the

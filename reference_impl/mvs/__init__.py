@@ -1,4 +1,4 @@
-"""Multi-view point clouds on the CPU (seed 000 section 4): dense depth maps, multi-view filtering, fusion.
+"""Multi-view point clouds on the CPU (Guo et al. 2018, section 4): dense depth maps, multi-view filtering, fusion.
 
 The registered method is :class:`MVS` (``mvs``). The pieces are reusable: :func:`load_views`, :func:`depth_maps`
 (raw per-view depth + normal maps), :func:`filter_depth_maps`, :func:`estimate_depth` (one reference view),

@@ -1,7 +1,7 @@
 """Depth refinement: geometric coherence across views and the edge-aware guided filter.
 
-Seed 000 Eq. 3-4 score a depth by photo-consistency times a geometric-coherence term m_v against the other views'
-depths and minimise with graph cuts. We keep its intent with the standard multi-view consistency test (COLMAP
+Eq. 3-4 of Guo et al. 2018 score a depth by photo-consistency times a geometric-coherence term m_v against the other
+views' depths and minimise with graph cuts. We keep its intent with the standard multi-view consistency test (COLMAP
 fusion, Zhang et al. 2009's m_v as a hard threshold): a pixel's depth survives when at least ``min_consistent``
 other views agree with it (forward-backward reprojection error below ``reproj_px`` and relative depth difference
 below ``rel_depth``), the photo-consistency part having been enforced by the matching-cost threshold. The same

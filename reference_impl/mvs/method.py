@@ -1,6 +1,6 @@
 """The ``mvs`` method: a view capture in, the plant's point cloud (points.ply) out.
 
-Pipeline (seed 000 section 4): known poses (or pycolmap SfM) -> neighbours -> per-view depth + normal
+Pipeline (Guo et al. 2018, section 4): known poses (or pycolmap SfM) -> neighbours -> per-view depth + normal
 (plane sweep + PatchMatch, :mod:`.patchmatch`) -> multi-view geometric consistency and free-space check
 (:mod:`.filtering`) -> guided filter -> fusion and voxel downsampling (:mod:`.fusion`) -> ground removal
 (:mod:`.ground`). The oracle mode replaces the depth estimation with noisy ground-truth depth (:mod:`.oracle`).
@@ -255,7 +255,7 @@ def _jsonable(obj):
 
 
 class MVS:
-    """Multi-view point cloud (seed 000 section 4): the first stage of guo, livny and xu on image captures.
+    """Multi-view point cloud (Guo et al. 2018, section 4): the first stage of guo, livny and xu on image captures.
 
     Options (a suite's ``[method_options.mvs]``): ``poses`` ('known' | 'sfm'), ``intrinsics`` ('known' |
     'unknown', SfM only), ``depth`` ('estimated' | 'oracle'), ``noise`` (oracle: sigma as a fraction of plant

@@ -106,7 +106,7 @@ class DepthParams:
 
 @dataclass(frozen=True)
 class FilterParams:
-    """Geometric coherence across views (seed 000 Eq. 3-4 in spirit) and the edge-aware guided filter."""
+    """Geometric coherence across views (Guo et al. 2018, Eq. 3-4, in spirit) and the edge-aware guided filter."""
 
     min_consistent: int = 1
     """A depth is kept when at least this many other views agree with it (1: the point is confirmed by two views,

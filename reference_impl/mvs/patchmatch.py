@@ -1,6 +1,6 @@
 """Per-view depth and normal maps on the CPU: a ZNCC plane sweep, then slanted-plane PatchMatch, in Dr.Jit LLVM.
 
-Seed 000 section 4 (depth initialisation, Eq. 1-2): each reference pixel gets a plane (depth d, normal n) whose
+Guo et al. 2018, section 4 (depth initialisation, Eq. 1-2): each reference pixel gets a plane (depth d, normal n) whose
 homography ``H = K_j (R_rel + t_rel n^T / rho) K_i^-1`` maps its support window into every source view, scored
 by photo-consistency. We do it in two stages:
 

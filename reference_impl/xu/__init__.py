@@ -1,4 +1,4 @@
-"""xu: the Xu, Gossett, Chen 2007-style baseline (seed 002), a registered ``points`` method.
+"""xu: the Xu, Gossett, Chen 2007-style baseline, a registered ``points`` method.
 
 The algorithm: :mod:`reference_impl.xu.skeleton` (section 4.1-4.2), :mod:`reference_impl.xu.synthesis` (4.3-4.4)
 and :mod:`reference_impl.xu.pipeline` (the whole chain, radii and angles of section 5.2, leaves of section 6; the

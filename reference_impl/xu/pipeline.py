@@ -1,4 +1,4 @@
-"""The Xu, Gossett, Chen 2007 pipeline (seed 002) end to end: :func:`reconstruct_xu`.
+"""The Xu, Gossett, Chen 2007 pipeline end to end: :func:`reconstruct_xu`.
 
 Parameters are the paper's Table I values for its 20 m elm, scaled by ``plant height / 20 m`` where they are
 lengths (the paper: "all parameter values ... are based on trees of this size"; the issue: scale with plant size).

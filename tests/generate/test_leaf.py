@@ -1,4 +1,4 @@
-"""The Bezier leaf (seed 001 Eq. 1-6) against analytic and independent computations."""
+"""The Bezier leaf (Chaurasia and Beardsley 2017, Eq. 1-6) against analytic and independent computations."""
 
 import numpy as np
 import pytest

@@ -1,5 +1,5 @@
-"""The species library: every file validates, bad input is reported precisely, and generated plants match seed 000
-Table 2 (H, |B|, l_B within 30 %)."""
+"""The species library: every file validates, bad input is reported precisely, and generated plants match
+Guo et al. 2018, Table 2 (H, |B|, l_B within 30 %)."""
 
 import shutil
 
@@ -10,7 +10,7 @@ from plantbench.generate import FAMILIES, generate_case, species_stats
 from plantbench.paths import species_dir
 from plantbench.species import load_species, species
 
-TABLE2 = {  # seed 000 Table 2: H (m), |B|, l_B (m)
+TABLE2 = {  # Guo et al. 2018, Table 2: H (m), |B|, l_B (m)
     "pentagon_maple": (3.92, 1733, 0.501),
     "peach": (4.76, 693, 0.429),
     "laurel": (0.97, 1980, 0.089),

@@ -1,4 +1,4 @@
-"""Growth (seed 000 Eq. 5-7, 9; L-system 1) against hand computations and naive versions."""
+"""Growth (Guo et al. 2018, Eq. 5-7, 9; L-system 1) against hand computations and naive versions."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Bezier leaf fitting (seed 001 section 5): recovery under occlusion, the fast model, UV mapping, weights."""
+"""Bezier leaf fitting (Chaurasia and Beardsley 2017, section 5): recovery under occlusion, the fast model, UV
+mapping, weights."""
 
 from __future__ import annotations
 

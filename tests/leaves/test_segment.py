@@ -1,4 +1,4 @@
-"""Per-view segmentation pieces (seed 001 section 4.1) against constructed cases."""
+"""Per-view segmentation pieces (Chaurasia and Beardsley 2017, section 4.1) against constructed cases."""
 
 from __future__ import annotations
 
