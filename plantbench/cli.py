@@ -145,7 +145,7 @@ def evaluate(
     from plantbench.metrics.evaluate import evaluate_detailed, format_summary
 
     values, reasons = evaluate_detailed(case, recon)
-    _console().print(format_summary(values, reasons))
+    _emit(format_summary(values, reasons))
     if json_out is not None:
         write_json(json_out, values)
         typer.echo(f"wrote {json_out}")
