@@ -1,7 +1,7 @@
 """The ``plantbench`` command: a thin layer over library functions.
 
 Only this module prints or exits. A user mistake (InputError: unknown name, malformed file, invalid value) prints
-one line and exits 2; a stage that has not landed yet exits 1 with a one-line message; ``--debug`` shows tracebacks.
+one line and exits 2; a method or stage that fails exits 1 with a one-line message; ``--debug`` shows tracebacks.
 """
 
 from __future__ import annotations
@@ -44,10 +44,6 @@ def _emit(table) -> None:
         typer.echo("\t".join(str(c._cells[i]) for c in cols))
 
 
-def _not_yet(stage: str, issue: int) -> None:
-    raise NotAvailableError(f"plantbench {stage}: not available yet (the stage lands with issue #{issue})")
-
-
 @app.callback()
 def _root(
     debug: Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.")] = False,
@@ -72,10 +68,8 @@ def generate(
     scale: Annotated[float, typer.Option(help="Growth budget factor in (0, 1]; < 1 grows smaller plants.")] = 1.0,
 ) -> None:
     """Grow a plant and write its ground truth (plant/)."""
-    try:
-        from plantbench.generate import generate_case
-    except ImportError:
-        _not_yet("generate", 3)
+    from plantbench.generate import generate_case
+
     meta = generate_case(species, seed, out, scale=scale)
     c = meta.counts
     typer.echo(
@@ -537,10 +531,8 @@ def species_cmd(
     from plantbench.species import load_species, species
 
     if stats:
-        try:
-            from plantbench.generate import species_stats
-        except ImportError:
-            _not_yet("species --stats", 3)
+        from plantbench.generate import species_stats
+
         rows = species_stats()
         table = Table("species", "H (m)", "H paper", "|B|", "|B| paper", "l_B (m)", "l_B paper")
 
@@ -574,7 +566,7 @@ def suites_cmd() -> None:
     table = Table("suite", "cases", "methods", "views", "description")
     for name, _ in suites.items():
         s = load_suite(name)
-        n_cases = sum(len(c.seeds) for c in s.cases)
+        n_cases = sum(c.count for c in s.cases)
         table.add_row(name, str(n_cases), ", ".join(s.methods), str(s.capture.views), s.description)
     _emit(table)
 

@@ -5,22 +5,73 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_serializer, model_validator
 
 from plantbench.errors import InputError
 from plantbench.paths import suites_dir
 from plantbench.registry import Registry
-from plantbench.schemas import Strict, load_toml, validation_message
+from plantbench.schemas import Strict, read_toml, validation_message
 
 __all__ = ["Suite", "CaseSet", "CaptureSettings", "Sweep", "suites", "load_suite", "apply_override"]
 
 
 class CaseSet(Strict):
-    """Plants of one species."""
+    """Plants of one species (``species`` and ``seeds``), or one case folder (``path``: a real capture as
+    ``plantbench import scan`` / ``import views`` makes it, or any folder with scan/ and/or views/), whose
+    ``species``, if given, is the species hint the methods receive (none without it)."""
 
-    species: str = Field(description="species name (scenes/species/NAME.toml)")
-    seeds: list[int] = Field(min_length=1, description="one plant per seed")
+    species: str | None = Field(default=None, description="species name (scenes/species/NAME.toml); beside "
+                                                          "``path``: the species hint (scenes/hints/NAME.toml)")
+    seeds: list[int] | None = Field(default=None, min_length=1, description="one plant per seed")
     scale: float = Field(default=1.0, gt=0, le=1.0, description="growth budget factor: < 1 grows smaller plants")
+    path: str | None = Field(default=None, description="a case folder (relative to the suite file's folder); "
+                                                       "stored resolved, absolute")
+
+    @field_validator("path")
+    @classmethod
+    def _resolve(cls, value: str | None, info: ValidationInfo) -> str | None:
+        if value is None:
+            return None
+        folder = Path(value).expanduser()
+        if not folder.is_absolute():
+            folder = Path((info.context or {}).get("base", ".")) / folder
+        return str(folder.resolve())
+
+    @model_validator(mode="after")
+    def _one_source(self):
+        if self.path is None:
+            if self.species is None or self.seeds is None:
+                raise ValueError("a case gives species and seeds (generated plants) or path (a case folder)")
+            return self
+        if self.seeds is not None:
+            raise ValueError(f"give species and seeds (generated plants) or path (a case folder, with species as "
+                             f"its optional hint), not seeds and path ({self.path})")
+        if self.scale != 1.0:
+            raise ValueError(f"scale grows generated plants; it does not apply to a case folder ({self.path})")
+        folder = Path(self.path)
+        if not folder.is_dir():
+            raise ValueError(f"case folder {self.path} not found")
+        if not ((folder / "scan" / "scan.ply").is_file() or (folder / "views" / "cameras.json").is_file()):
+            raise ValueError(f"case folder {self.path} holds neither scan/scan.ply nor views/cameras.json")
+        if self.species is not None:
+            from plantbench.hints import load_hint
+
+            try:
+                load_hint(self.species)
+            except InputError as exc:
+                raise ValueError(f"species hint of case folder {self.path}: {exc}") from None
+        return self
+
+    @model_serializer(mode="wrap")
+    def _without_absent(self, handler):
+        """The fields given, as before case folders existed: a generated case dumps as {species, seeds, scale}, so
+        that config hashes and packed datasets' suite configs stay what they were."""
+        return {k: v for k, v in handler(self).items() if not (k in ("species", "seeds", "path") and v is None)}
+
+    @property
+    def count(self) -> int:
+        """Number of cases: one per seed, or the one folder."""
+        return 1 if self.path is not None else len(self.seeds or ())
 
 
 class CaptureSettings(Strict):
@@ -96,8 +147,11 @@ suites: Registry[Path] = Registry("suite", _discover)
 
 
 def load_suite(name_or_path: str) -> Suite:
-    """A suite by name, or by path to a TOML file."""
+    """A suite by name, or by path to a TOML file (a case's ``path`` is relative to the file's folder)."""
     path = Path(name_or_path)
     if not (path.suffix == ".toml" and path.exists()):
         path = suites.get(name_or_path)
-    return load_toml(path, Suite)
+    try:
+        return Suite.model_validate(read_toml(path), context={"base": str(Path(path).resolve().parent)})
+    except ValidationError as exc:
+        raise InputError(validation_message(exc), path=path) from None

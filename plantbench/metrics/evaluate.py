@@ -4,7 +4,10 @@
 with every registered metric present (see :data:`plantbench.metrics.info.METRICS`). A metric that cannot apply is
 None, never NaN; :func:`evaluate_detailed` also returns why:
 
-* no ``plant/`` folder (a real capture): Stava, mesh_to_surface, points, surface, skeleton and leaf metrics;
+* no ``plant/`` folder (a real capture): Stava, mesh_to_surface, points, surface and leaf metrics, and the skeleton
+  metrics that compare with the ground truth (P/R/F1, ``skeleton.*_error*``); the reconstruction's own traits
+  (``skeleton.height_m``, ``branch_count``, ``total_length_m``, ``mean_branch_length_m``, ``dbh_cm``,
+  ``crown_area_m2``) are still reported, as are ``mesh_to_scan``, ``reprojection`` and ``support``;
 * no ``mesh.ply`` in the output: mesh_to_scan, mesh_to_surface, reprojection, surface;
 * no ``scan/scan.ply`` and no ``plant/``: mesh_to_scan (with ``plant/`` but no scan the ground truth is a dense
   area-uniform sample of the plant surface);
@@ -14,7 +17,7 @@ None, never NaN; :func:`evaluate_detailed` also returns why:
 * no ``leaves.json`` in the output: leaf metrics; no ``points.ply``: points metrics; no ``skeleton.ply``: Stava and
   skeleton metrics;
 * a ground truth without leaves: the foliage part of the point and surface metrics; a trunk shorter than breast
-  height: DBH.
+  height: DBH; fewer than 3 skeleton nodes, or all on one vertical plane: the crown projection area.
 
 Random samples (surface samples) come from a generator seeded by ``options.seed``: the same inputs give the same
 numbers.
@@ -101,6 +104,150 @@ def _read_masks(case: Path, cameras: list, images: list[str]) -> list[np.ndarray
     return masks
 
 
+def _skeleton_metrics(values: dict, reasons: dict, plant, skeleton, options: EvaluateOptions, no_plant: str) -> None:
+    """The ``skeleton.*`` metrics: the reconstruction's own traits (height, branches, lengths, DBH, crown area) with
+    or without ground truth; P/R/F1 and the errors against the ground truth only with it."""
+    from plantbench.metrics.skeleton import crown_area, skeleton_attributes, skeleton_prf
+
+    if skeleton is None:
+        _set(values, reasons, "skeleton", None, "no skeleton.ply in the output")
+        return
+    a = skeleton_attributes(skeleton, breast_height=options.breast_height)
+    area = crown_area(skeleton)
+    _set(values, reasons, "skeleton", {"crown_area_m2": area}, "fewer than 3 skeleton nodes, or all in one vertical plane")
+    traits = {"branch_count": a["branch_count"], "total_length_m": a["total_length_m"],
+              "mean_branch_length_m": a["mean_branch_length_m"], "height_m": a["height_m"],
+              "dbh_cm": None if a["dbh_m"] is None else a["dbh_m"] * 100}
+    if plant is None:
+        _set(values, reasons, "skeleton", traits, "trunk below breast height, or no branch")
+        _set(values, reasons, "skeleton", None, no_plant)  # P/R/F1 and every error
+        return
+    prf = skeleton_prf(plant.skeleton, skeleton, step=options.skeleton_step,
+                       height=plant.height if plant.height > 0 else None)
+    a_gt = skeleton_attributes(plant.skeleton, breast_height=options.breast_height)
+
+    def rel(k):
+        return abs(a[k] - a_gt[k]) / a_gt[k] if a_gt[k] else None
+
+    dbh_err = abs(a["dbh_m"] - a_gt["dbh_m"]) * 100 if a["dbh_m"] is not None and a_gt["dbh_m"] is not None \
+        else None
+    area_gt = crown_area(plant.skeleton)
+    _set(values, reasons, "skeleton", {"crown_area_rel_error": abs(area - area_gt) / area_gt if area is not None
+                                       and area_gt is not None else None}, "no crown area (here or in the ground truth)")
+    _set(values, reasons, "skeleton", {
+        **prf, **traits,
+        "branch_count_rel_error": rel("branch_count"), "total_length_rel_error": rel("total_length_m"),
+        "height_error_m": abs(a["height_m"] - a_gt["height_m"]), "dbh_error_cm": dbh_err,
+    }, "trunk below breast height, or no branch")
+
+
+def _support_metrics(values: dict, reasons: dict, skeleton, observed: np.ndarray | None,
+                     options: EvaluateOptions) -> None:
+    """``support.*``: the GT-free share of the skeleton's length near an observed point (the scan, or the input
+    cloud), tolerances fractions of the observed height above z = 0."""
+    from plantbench.metrics.points import tau_label
+    from plantbench.metrics.skeleton import HEIGHT_FRACTIONS, skeleton_support
+
+    obs_height = float(np.quantile(observed[:, 2], 0.999)) if observed is not None and len(observed) else 0.0
+    if skeleton is None or observed is None or obs_height <= 0:
+        _set(values, reasons, "support", None, "no skeleton.ply in the output" if skeleton is None
+             else "no scan/scan.ply or observed cloud above the ground")
+        return
+    shares = skeleton_support(skeleton, observed, tolerances=tuple(f * obs_height for f in HEIGHT_FRACTIONS),
+                              step=options.skeleton_step)
+    _set(values, reasons, "support", None if shares is None else
+         {f"skeleton@{tau_label(f)}": v for f, v in zip(HEIGHT_FRACTIONS, shares)}, "the skeleton has no length")
+
+
+def _gt_surface_sample(plant, options: EvaluateOptions) -> tuple[np.ndarray, np.ndarray]:
+    """Area-uniform sample of the ground-truth surface and its labels (0 wood, 1 foliage); the skeleton's nodes
+    (wood) for a plant without surface."""
+    from plantbench.metrics.surface import sample_surface
+    from plantbench.seeding import rng as make_rng
+
+    r = make_rng(options.seed, "metrics", "gt-surface")
+    mw = plant.branch_mesh.face_areas().sum() if len(plant.branch_mesh.faces) else 0.0
+    ml = plant.leaf_mesh.face_areas().sum() if len(plant.leaf_mesh.faces) else 0.0
+    n_w = int(round(options.gt_samples * mw / (mw + ml))) if mw + ml > 0 else 0
+    pw, _ = sample_surface(plant.branch_mesh, n_w, r)
+    pl, _ = sample_surface(plant.leaf_mesh, options.gt_samples - n_w, r)
+    gt_pts = np.concatenate([pw, pl])
+    gt_lab = np.concatenate([np.zeros(len(pw), np.int64), np.ones(len(pl), np.int64)])
+    if len(gt_pts) == 0:
+        gt_pts = plant.skeleton.positions
+        gt_lab = np.zeros(len(gt_pts), np.int64)
+    return gt_pts, gt_lab
+
+
+def _reprojection_metrics(values: dict, reasons: dict, case: Path, mesh) -> None:
+    """``reprojection.*``: the mesh's silhouettes against the case's instance masks (no ground truth needed)."""
+    from plantbench.cameras import read_cameras
+    from plantbench.metrics.reprojection import render_silhouettes, reprojection_error
+
+    cam_path = case / "views" / "cameras.json"
+    if mesh is None or not cam_path.is_file() or not (case / "views" / "instance").is_dir():
+        _set(values, reasons, "reprojection", None,
+             "no mesh.ply in the output" if mesh is None else "no views/cameras.json or views/instance/")
+        return
+    cameras, images = read_cameras(cam_path)
+    res = reprojection_error(_read_masks(case, cameras, images), render_silhouettes(mesh, cameras))
+    err = res.per_view_error[np.isfinite(res.per_view_error)]
+    _set(values, reasons, "reprojection", {
+        "error": res.error, "error_max": float(err.max()) if len(err) else None,
+        "iou": res.iou, "iou_min": float(res.per_view_iou.min())}, "every reference mask is empty")
+
+
+def _leaf_metrics(values: dict, reasons: dict, plant, leaves, no_plant: str) -> None:
+    """``leaves.*``: counts and detection (Hungarian and strict matching of centroids) against the ground truth."""
+    from plantbench.metrics import leaves as lv
+
+    if plant is None or leaves is None:
+        _set(values, reasons, "leaves", None, no_plant if plant is None else "no leaves.json in the output")
+        return
+    counts = lv.leaf_count_metrics(len(plant.leaves), len(leaves))
+    lengths = [leaf.length for leaf in plant.leaves]
+    radius = 0.5 * float(np.median(lengths)) if lengths else 1.0
+    gt_c = np.array([leaf.centroid for leaf in plant.leaves]).reshape(-1, 3)
+    pred_c = np.array([leaf.centroid for leaf in leaves]).reshape(-1, 3)
+    det = lv.leaf_detection(gt_c, pred_c, radius=radius)
+    det.pop("matched")
+    spacing = lv.median_spacing(gt_c) if len(gt_c) > 1 else (plant.leaves[0].length if len(gt_c) else 1.0)
+    strict = lv.leaf_detection(gt_c, pred_c, radius=lv.SPACING_FRACTION * spacing)
+    det.update({f"strict_{k}": strict[k] for k in ("precision", "recall", "f1")})
+    _set(values, reasons, "leaves", {**counts, **det}, "no ground-truth leaf")
+
+
+def _cloud_scores(values: dict, reasons: dict, plant, points, mesh, gt_sample: tuple, options: EvaluateOptions,
+                  no_plant: str) -> None:
+    """``points.*`` (the method's points.ply) and ``surface.*`` (a sample of its mesh) against the ground-truth
+    surface sample ``gt_sample`` (points, labels)."""
+    from plantbench.metrics.points import cloud_metrics
+    from plantbench.metrics.surface import kdtree, sample_surface
+    from plantbench.seeding import rng as make_rng
+
+    gt_pts, gt_lab = gt_sample
+    height = plant.height if plant is not None else 0.0
+    gt_tree = kdtree(gt_pts) if plant is not None and height > 0 else None  # for both cloud scores below
+    if points is None:
+        _set(values, reasons, "points", None, "no points.ply in the output")
+    else:
+        values["points.count"] = float(len(points))
+        if plant is None or height <= 0:
+            _set(values, reasons, "points", None, no_plant)
+        else:
+            _set(values, reasons, "points", cloud_metrics(gt_pts, gt_lab, points, height=height,
+                                                          max_dist_fraction=options.max_dist_fraction,
+                                                          gt_tree=gt_tree),
+                 "no ground-truth points of this part, or no reconstructed points")
+    if mesh is None or plant is None or height <= 0:
+        _set(values, reasons, "surface", None, "no mesh.ply in the output" if mesh is None else no_plant)
+    else:
+        pts, _ = sample_surface(mesh, options.recon_samples, make_rng(options.seed, "metrics", "recon-surface"))
+        _set(values, reasons, "surface", cloud_metrics(gt_pts, gt_lab, pts, height=height,
+                                                       max_dist_fraction=options.max_dist_fraction, gt_tree=gt_tree),
+             "no ground-truth points of this part, or an empty reconstructed surface")
+
+
 def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike, *,
                       options: EvaluateOptions = EvaluateOptions(), observed: np.ndarray | None = None
                       ) -> tuple[dict[str, float | None], dict[str, str]]:
@@ -108,21 +255,10 @@ def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike,
 
     ``observed`` : (m, 3) float, the points the capture gave for the GT-free skeleton support; None: the case's
     ``scan/scan.ply``."""
-    from plantbench.cameras import read_cameras
     from plantbench.io.plantio import read_plant, read_reconstruction
     from plantbench.io.ply import read_points
-    from plantbench.metrics import leaves as lv
-    from plantbench.metrics.points import cloud_metrics, tau_label
-    from plantbench.metrics.reprojection import render_silhouettes, reprojection_error
-    from plantbench.metrics.skeleton import HEIGHT_FRACTIONS, skeleton_attributes, skeleton_prf, skeleton_support
     from plantbench.metrics.stava import stava_similarities
-    from plantbench.metrics.surface import (
-        distance_stats_cm,
-        kdtree,
-        mesh_to_scan,
-        point_to_mesh_distances,
-        sample_surface,
-    )
+    from plantbench.metrics.surface import distance_stats_cm, mesh_to_scan, point_to_mesh_distances
     from plantbench.plant import TriMesh
     from plantbench.seeding import rng as make_rng
 
@@ -144,57 +280,14 @@ def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike,
         both = stava_similarities(plant.skeleton, recon.skeleton, params=options.stava)
         for prefix, res in zip(("stava", "stava_nosplit"), both):
             _set(values, reasons, prefix, res.as_dict())
-    if plant is None or recon.skeleton is None:
-        _set(values, reasons, "skeleton", None, no_plant if plant is None else "no skeleton.ply in the output")
-    else:
-        prf = skeleton_prf(plant.skeleton, recon.skeleton, step=options.skeleton_step,
-                           height=plant.height if plant.height > 0 else None)
-        a_gt = skeleton_attributes(plant.skeleton, breast_height=options.breast_height)
-        a = skeleton_attributes(recon.skeleton, breast_height=options.breast_height)
-
-        def rel(k):
-            return abs(a[k] - a_gt[k]) / a_gt[k] if a_gt[k] else None
-
-        dbh_err = abs(a["dbh_m"] - a_gt["dbh_m"]) * 100 if a["dbh_m"] is not None and a_gt["dbh_m"] is not None \
-            else None
-        _set(values, reasons, "skeleton", {
-            **prf,
-            "branch_count": a["branch_count"], "branch_count_rel_error": rel("branch_count"),
-            "total_length_m": a["total_length_m"], "total_length_rel_error": rel("total_length_m"),
-            "mean_branch_length_m": a["mean_branch_length_m"], "height_m": a["height_m"],
-            "height_error_m": abs(a["height_m"] - a_gt["height_m"]),
-            "dbh_cm": None if a["dbh_m"] is None else a["dbh_m"] * 100, "dbh_error_cm": dbh_err,
-        }, "trunk below breast height, or no branch")
+    _skeleton_metrics(values, reasons, plant, recon.skeleton, options, no_plant)
 
     # ---- GT-free support of the skeleton by the observed points
     scan_path = case / "scan" / "scan.ply"
     scan_pts = read_points(scan_path)[0] if scan_path.is_file() else None
-    if observed is None:
-        observed = scan_pts
-    obs_height = float(np.quantile(observed[:, 2], 0.999)) if observed is not None and len(observed) else 0.0
-    if recon.skeleton is None or observed is None or obs_height <= 0:
-        _set(values, reasons, "support", None, "no skeleton.ply in the output" if recon.skeleton is None
-             else "no scan/scan.ply or observed cloud above the ground")
-    else:
-        shares = skeleton_support(recon.skeleton, observed, tolerances=tuple(f * obs_height for f in HEIGHT_FRACTIONS),
-                                  step=options.skeleton_step)
-        _set(values, reasons, "support", None if shares is None else
-             {f"skeleton@{tau_label(f)}": v for f, v in zip(HEIGHT_FRACTIONS, shares)}, "the skeleton has no length")
+    _support_metrics(values, reasons, recon.skeleton, scan_pts if observed is None else observed, options)
 
-    # ---- ground-truth surface sample (labels 0 wood, 1 foliage)
-    gt_pts = gt_lab = None
-    if plant is not None:
-        r = make_rng(options.seed, "metrics", "gt-surface")
-        mw = plant.branch_mesh.face_areas().sum() if len(plant.branch_mesh.faces) else 0.0
-        ml = plant.leaf_mesh.face_areas().sum() if len(plant.leaf_mesh.faces) else 0.0
-        n_w = int(round(options.gt_samples * mw / (mw + ml))) if mw + ml > 0 else 0
-        pw, _ = sample_surface(plant.branch_mesh, n_w, r)
-        pl, _ = sample_surface(plant.leaf_mesh, options.gt_samples - n_w, r)
-        gt_pts = np.concatenate([pw, pl])
-        gt_lab = np.concatenate([np.zeros(len(pw), np.int64), np.ones(len(pl), np.int64)])
-        if len(gt_pts) == 0:
-            gt_pts = plant.skeleton.positions
-            gt_lab = np.zeros(len(gt_pts), np.int64)
+    gt_pts, gt_lab = _gt_surface_sample(plant, options) if plant is not None else (None, None)
 
     # ---- mesh to scan / surface
     scan = scan_pts if scan_pts is not None else gt_pts
@@ -213,56 +306,9 @@ def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike,
         D, s = distance_stats_cm(point_to_mesh_distances(gt_mesh, mesh.vertices))
         _set(values, reasons, "mesh_to_surface", {"D_cm": D, "sigma_cm": s}, "empty mesh (no vertices)")
 
-    # ---- reprojection
-    cam_path = case / "views" / "cameras.json"
-    if mesh is None or not cam_path.is_file() or not (case / "views" / "instance").is_dir():
-        _set(values, reasons, "reprojection", None,
-             "no mesh.ply in the output" if mesh is None else "no views/cameras.json or views/instance/")
-    else:
-        cameras, images = read_cameras(cam_path)
-        res = reprojection_error(_read_masks(case, cameras, images), render_silhouettes(mesh, cameras))
-        err = res.per_view_error[np.isfinite(res.per_view_error)]
-        _set(values, reasons, "reprojection", {
-            "error": res.error, "error_max": float(err.max()) if len(err) else None,
-            "iou": res.iou, "iou_min": float(res.per_view_iou.min())}, "every reference mask is empty")
-
-    # ---- leaves
-    if plant is None or recon.leaves is None:
-        _set(values, reasons, "leaves", None, no_plant if plant is None else "no leaves.json in the output")
-    else:
-        counts = lv.leaf_count_metrics(len(plant.leaves), len(recon.leaves))
-        lengths = [leaf.length for leaf in plant.leaves]
-        radius = 0.5 * float(np.median(lengths)) if lengths else 1.0
-        gt_c = np.array([leaf.centroid for leaf in plant.leaves]).reshape(-1, 3)
-        pred_c = np.array([leaf.centroid for leaf in recon.leaves]).reshape(-1, 3)
-        det = lv.leaf_detection(gt_c, pred_c, radius=radius)
-        det.pop("matched")
-        spacing = lv.median_spacing(gt_c) if len(gt_c) > 1 else (plant.leaves[0].length if len(gt_c) else 1.0)
-        strict = lv.leaf_detection(gt_c, pred_c, radius=lv.SPACING_FRACTION * spacing)
-        det.update({f"strict_{k}": strict[k] for k in ("precision", "recall", "f1")})
-        _set(values, reasons, "leaves", {**counts, **det}, "no ground-truth leaf")
-
-    # ---- points and surface
-    height = plant.height if plant is not None else 0.0
-    gt_tree = kdtree(gt_pts) if plant is not None and height > 0 else None  # for both cloud scores below
-    if recon.points is None:
-        _set(values, reasons, "points", None, "no points.ply in the output")
-    else:
-        values["points.count"] = float(len(recon.points))
-        if plant is None or height <= 0:
-            _set(values, reasons, "points", None, no_plant)
-        else:
-            _set(values, reasons, "points", cloud_metrics(gt_pts, gt_lab, recon.points, height=height,
-                                                          max_dist_fraction=options.max_dist_fraction,
-                                                          gt_tree=gt_tree),
-                 "no ground-truth points of this part, or no reconstructed points")
-    if mesh is None or plant is None or height <= 0:
-        _set(values, reasons, "surface", None, "no mesh.ply in the output" if mesh is None else no_plant)
-    else:
-        pts, _ = sample_surface(mesh, options.recon_samples, make_rng(options.seed, "metrics", "recon-surface"))
-        _set(values, reasons, "surface", cloud_metrics(gt_pts, gt_lab, pts, height=height,
-                                                       max_dist_fraction=options.max_dist_fraction, gt_tree=gt_tree),
-             "no ground-truth points of this part, or an empty reconstructed surface")
+    _reprojection_metrics(values, reasons, case, mesh)
+    _leaf_metrics(values, reasons, plant, recon.leaves, no_plant)
+    _cloud_scores(values, reasons, plant, recon.points, mesh, (gt_pts, gt_lab), options, no_plant)
     missing = set(METRICS) - set(values)
     if missing:
         raise AssertionError(f"evaluate did not set {sorted(missing)}")

@@ -104,6 +104,9 @@ _add("skeleton.height_m", "m", None, "reconstructed skeleton height (Guo et al. 
 _add("skeleton.height_error_m", "m", False, "|height - GT height|")
 _add("skeleton.dbh_cm", "cm", None, "reconstructed diameter at breast height (1.3 m)")
 _add("skeleton.dbh_error_cm", "cm", False, "|DBH - GT DBH|")
+_add("skeleton.crown_area_m2", "m2", None,
+     "reconstructed crown projection area: 2D convex hull of the skeleton nodes' (x, y); needs no ground truth")
+_add("skeleton.crown_area_rel_error", "", False, "|crown projection area - GT| / GT")
 
 HEADLINE_FIDELITY = ("skeleton.vf1@1%", "surface.wood.fscore@0.5%", "leaves.strict_f1")
 """The headline fidelity metrics: one skeleton, one surface and one leaf metric that ``plantbench calibrate`` found

@@ -22,6 +22,11 @@ ground-truth wood within tau of its nodes.
 DBH: diameter of the trunk at height ``breast_height`` above the lowest skeleton node (1.3 m, as TreeQSM), the trunk
 being the path that starts at the thickest root and always follows the thickest child; linear interpolation of the
 radius along the edge that crosses that height. None when the trunk does not reach it.
+
+Crown projection area: the area of the 2D convex hull of all the skeleton's nodes projected on the ground plane
+(x, y), in m^2. Every node counts: no crown base is guessed (the trunk's nodes usually fall inside the hull of the
+crown above them). None for fewer than 3 distinct projections or collinear ones (zero area). It needs no ground
+truth.
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ from plantbench.plant import Skeleton, check_shape
 from plantbench.skeletons import branch_chains, children_lists
 
 __all__ = ["THRESHOLDS", "HEIGHT_FRACTIONS", "sample_skeleton", "sample_weights", "skeleton_prf",
-           "skeleton_attributes", "dbh", "skeleton_support"]
+           "skeleton_attributes", "dbh", "skeleton_support", "crown_area"]
 
 THRESHOLDS = (0.5, 1.0, 2.0)
 """Radius-relative tolerances of the Smart-Tree protocol (multiples of the local ground-truth radius)."""
@@ -188,3 +193,18 @@ def skeleton_attributes(skeleton: Skeleton, *, breast_height: float = 1.3) -> di
         "height_m": float(z.max() - z.min()),
         "dbh_m": dbh(skeleton, breast_height=breast_height),
     }
+
+
+def crown_area(skeleton: Skeleton) -> float | None:
+    """Crown projection area (m^2): area of the convex hull of the nodes' (x, y); None for fewer than 3 nodes or
+    collinear projections (see the module)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    xy = np.unique(np.asarray(skeleton.positions, float)[:, :2], axis=0)
+    if len(xy) < 3:
+        return None
+    try:
+        area = float(ConvexHull(xy).volume)  # in 2D, the hull's "volume" is its area
+    except QhullError:  # every point on one line
+        return None
+    return area if area > 0 else None

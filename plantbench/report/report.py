@@ -205,10 +205,18 @@ def render_table(df, fmt: str, caption: str) -> str:
     raise InputError(f"unknown report format {fmt!r}; choose one of {', '.join(FORMATS)}")
 
 
+def _scored(table) -> set[str]:
+    """The metrics of ``table`` with at least one finite value in an ok cell (all of them when none has one, so that
+    a run whose every cell failed still lists its metrics as failed)."""
+    ok = table[(table["status"] == "ok") & np.isfinite(table["value"].to_numpy(float))]
+    return set(ok["metric"]) or set(table["metric"])
+
+
 def _tables(table) -> list[tuple[str, str, object]]:
     """(slug, caption, DataFrame) for every table of the report: the headline (metrics down the side), the paired
-    comparisons, the paper's columns, then per species and per family on the headline metrics."""
-    present = set(table["metric"])
+    comparisons, the paper's columns, then per species and per family on the headline metrics. A metric without a
+    single value (every ground-truth metric of a run on real captures) is left out of all but the paper's table."""
+    present = _scored(table)
     labels = {m: _unit_label(m) for m in present}
     key = tuple(m for m in KEY_METRICS if m in present and m != "runtime_s") + (("runtime_s",) if "runtime_s" in
                                                                                  present else ())
@@ -220,7 +228,7 @@ def _tables(table) -> list[tuple[str, str, object]]:
         out.append(("paired", "Paired differences over cases (mean and 95 % bootstrap CI): each method against the "
                               "no-data prior, and each pair of methods. 'beats' only when the interval excludes 0",
                     comp))
-    paper = [m for _, m in PAPER_COLUMNS if m in present]
+    paper = [m for _, m in PAPER_COLUMNS if m in set(table["metric"])]
     if paper:
         names = {m: label for label, m in PAPER_COLUMNS}
         out.append(("paper", "Per species and method, the reference paper's Table 3 columns",

@@ -14,6 +14,7 @@ import hashlib
 import importlib.util
 import inspect
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -204,9 +205,10 @@ def make_plan(suite: Suite, methods: list[str] | None = None, *, dataset: tuple[
     """Expand ``suite`` (and its sweep) into jobs and cells. Unknown species or methods raise before any work.
 
     ``dataset`` (folder, :class:`plantbench.dataset.Manifest`, verified): each case's capture is the dataset's copy
-    (a job that copies it into the cache, keyed by the files' sha256) instead of a generated and rendered one."""
+    (a job that copies it into the cache, keyed by the files' sha256) instead of a generated and rendered one.
+    A case folder of the suite (``path``) is copied into the cache the same way, keyed by its files' sha256."""
     from plantbench.backend import llvm_target_id
-    from plantbench.species import load_species, species
+    from plantbench.errors import InputError
 
     method_names = methods or suite.methods
     resolved = {name: method_from_spec(name) for name in method_names}
@@ -223,45 +225,55 @@ def make_plan(suite: Suite, methods: list[str] | None = None, *, dataset: tuple[
         # Dr.Jit's code generation changes renders and mvs depth: part of every key downstream of the capture
         "llvm": llvm_target_id(),
     }
+    seen: set[str] = set()
     for sweep_value, s in variants:
         for case_set in s.cases:
-            spec = load_species(case_set.species)
-            species_bytes = species.get(case_set.species).read_bytes()
-            hint = _hint_hash(case_set.species)
-            for seed in case_set.seeds:
-                case_id = f"{case_set.species}-{seed}" + (f"@{sweep_value}" if sweep_value is not None else "")
-                if dataset is not None:
-                    case_key = plan.add(_dataset_job(dataset, case_id, s, version_code))
-                else:
-                    plant_key = plan.add(Job("plant", content_hash(
-                        ["plant", case_set.species, hashlib.sha256(species_bytes).hexdigest(), seed, case_set.scale,
-                         version_code["plant"]]), {"species": case_set.species, "seed": seed, "scale": case_set.scale},
-                        timeout_s=s.timeout_s))
-                    capture = s.capture.model_dump(mode="json")
-                    case_key = plan.add(Job("capture", content_hash(
-                        ["capture", plant_key, capture, s.root_seed, version_code["capture"], version_code["llvm"]]),
-                        {"plant": plant_key, "settings": capture, "seed": seed, "root_seed": s.root_seed},
-                        deps=(plant_key,), timeout_s=s.timeout_s))
-                points_key = None
-                for name, method in resolved.items():
-                    deps = [case_key]
-                    if method.inputs == "points":
-                        if points_key is None:
-                            points_key = _points_job(plan, s, case_key, seed, case_set.species, version_code, hint)
-                        deps.append(points_key)
-                    options = s.method_options.get(name, {})
-                    recon_key = plan.add(Job("method", content_hash(
-                        ["method", name, _method_code_hash(method), deps, options, seed, case_set.species, hint,
-                         version_code["runner"], version_code["llvm"]]),
-                        {"method": name, "case": case_key, "points": points_key if method.inputs == "points" else None,
-                         "seed": seed, "species": case_set.species, "options": options},
-                        deps=tuple(deps), timeout_s=s.timeout_s))
-                    metrics_key = plan.add(Job("metrics", content_hash(
-                        ["metrics", recon_key, version_code["metrics"]]),
-                        {"case": case_key, "recon": recon_key}, deps=(recon_key,), timeout_s=s.timeout_s))
-                    plan.cells.append(Cell(case_id, case_set.species, spec.family, seed, name, sweep_value,
-                                           recon_key, metrics_key, case_key))
+            cases = [_folder_case(plan, s, case_set, sweep_value, version_code)] if case_set.path is not None \
+                else _generated_cases(plan, s, case_set, sweep_value, version_code, dataset)
+            for case in cases:
+                if case.id in seen:
+                    raise InputError(f"suite {s.name}: two cases named {case.id!r} (case folders are named by their "
+                                     "folder's name: rename one)")
+                seen.add(case.id)
+                _method_jobs(plan, s, resolved, case, sweep_value, version_code)
     return plan
+
+
+@dataclass(frozen=True)
+class _Case:
+    """A case of the plan, its capture job added: what its method and metrics jobs and its cells need."""
+
+    id: str
+    species: str  # the results table's species column
+    family: str
+    seed: int
+    key: str  # the capture job
+    hint_species: str | None  # the species hint the methods receive
+    hint: str | None  # sha256 of the hint file
+
+
+def _generated_cases(plan: Plan, s: Suite, case_set, sweep_value, version_code: dict, dataset):
+    """The generated (or frozen-dataset) cases of one species: adds their plant and capture jobs as it yields."""
+    from plantbench.species import load_species, species
+
+    spec = load_species(case_set.species)
+    species_bytes = species.get(case_set.species).read_bytes()
+    hint = _hint_hash(case_set.species)
+    for seed in case_set.seeds:
+        case_id = f"{case_set.species}-{seed}" + (f"@{sweep_value}" if sweep_value is not None else "")
+        if dataset is not None:
+            case_key = plan.add(_dataset_job(dataset, case_id, s, version_code))
+        else:
+            plant_key = plan.add(Job("plant", content_hash(
+                ["plant", case_set.species, hashlib.sha256(species_bytes).hexdigest(), seed, case_set.scale,
+                 version_code["plant"]]), {"species": case_set.species, "seed": seed, "scale": case_set.scale},
+                timeout_s=s.timeout_s))
+            capture = s.capture.model_dump(mode="json")
+            case_key = plan.add(Job("capture", content_hash(
+                ["capture", plant_key, capture, s.root_seed, version_code["capture"], version_code["llvm"]]),
+                {"plant": plant_key, "settings": capture, "seed": seed, "root_seed": s.root_seed},
+                deps=(plant_key,), timeout_s=s.timeout_s))
+        yield _Case(case_id, case_set.species, spec.family, seed, case_key, case_set.species, hint)
 
 
 def _dataset_job(dataset: tuple[Path, Any], case_id: str, s: Suite, version_code: dict) -> Job:
@@ -275,6 +287,58 @@ def _dataset_job(dataset: tuple[Path, Any], case_id: str, s: Suite, version_code
         raise InputError(f"case {case_id} of suite {s.name} is not in the dataset", path=Path(folder) / "manifest.json")
     return Job("capture", content_hash(["dataset", files, version_code["runner"]]),
                {"dataset": str(Path(folder).resolve()), "case": case_id}, timeout_s=s.timeout_s)
+
+
+CASE_PARTS = ("plant", "views", "scan", "case.json")
+"""What a case folder's capture job copies into the cache (those present)."""
+REAL_FAMILY = "real"
+"""The family column of a case folder's cells (a real capture: no generator family)."""
+
+
+def _folder_case(plan: Plan, s: Suite, case_set, sweep_value, version_code: dict) -> _Case:
+    """A suite's case folder (``path``): a capture job that copies it into the cache, keyed by the sha256 of its
+    files, so that editing one re-runs everything downstream. Case id: the folder's name; seed 0; species: the
+    hint's, or 'unknown' without one."""
+    from plantbench.dataset import file_sha256
+
+    folder = Path(case_set.path)
+    case_id = folder.name + (f"@{sweep_value}" if sweep_value is not None else "")
+    files = {}
+    for part in CASE_PARTS:
+        if (folder / part).is_file():
+            files[part] = file_sha256(folder / part)
+        for root, _, names in os.walk(folder / part, followlinks=True):
+            for name in names:
+                path = Path(root) / name
+                files[path.relative_to(folder).as_posix()] = file_sha256(path)
+    key = plan.add(Job("capture", content_hash(["folder", files, version_code["runner"]]),
+                       {"folder": str(folder), "parts": list(CASE_PARTS)}, timeout_s=s.timeout_s))
+    hint = _hint_hash(case_set.species) if case_set.species else None
+    return _Case(case_id, case_set.species or "unknown", REAL_FAMILY, 0, key, case_set.species, hint)
+
+
+def _method_jobs(plan: Plan, s: Suite, resolved: dict, case: _Case, sweep_value, version_code: dict) -> None:
+    """Each method's job on ``case`` (after the shared points job its 'points' methods read), its metrics job and
+    its cell."""
+    points_key = None
+    for name, method in resolved.items():
+        deps = [case.key]
+        if method.inputs == "points":
+            if points_key is None:
+                points_key = _points_job(plan, s, case.key, case.seed, case.hint_species, version_code, case.hint)
+            deps.append(points_key)
+        options = s.method_options.get(name, {})
+        recon_key = plan.add(Job("method", content_hash(
+            ["method", name, _method_code_hash(method), deps, options, case.seed, case.hint_species, case.hint,
+             version_code["runner"], version_code["llvm"]]),
+            {"method": name, "case": case.key, "points": points_key if method.inputs == "points" else None,
+             "seed": case.seed, "species": case.hint_species, "options": options},
+            deps=tuple(deps), timeout_s=s.timeout_s))
+        metrics_key = plan.add(Job("metrics", content_hash(
+            ["metrics", recon_key, version_code["metrics"]]),
+            {"case": case.key, "recon": recon_key}, deps=(recon_key,), timeout_s=s.timeout_s))
+        plan.cells.append(Cell(case.id, case.species, case.family, case.seed, name, sweep_value,
+                               recon_key, metrics_key, case.key))
 
 
 def _hint_hash(species: str) -> str:

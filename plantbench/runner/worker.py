@@ -58,13 +58,8 @@ def run_job(cache: Path, kind: str, key: str, folder: Path, params: dict) -> dic
             from plantbench.generate import generate_case
 
             generate_case(params["species"], params["seed"], folder, scale=params["scale"])
-        elif kind == "capture" and "dataset" in params:  # a frozen dataset's case (verified before the run)
-            import shutil
-
-            src = Path(params["dataset"]) / "cases" / params["case"]
-            for part in ("plant", "views", "scan"):
-                if (src / part).is_dir():
-                    shutil.copytree(src / part, folder / part)
+        elif kind == "capture" and ("dataset" in params or "folder" in params):
+            _copy_case(folder, params)
         elif kind == "capture":
             from plantbench.capture import capture_case
 
@@ -90,6 +85,22 @@ def run_job(cache: Path, kind: str, key: str, folder: Path, params: dict) -> dic
     record = {"status": status, "error": error, "seconds": time.perf_counter() - t0, "kind": kind, "key": key}
     write_json(folder / "status.json", record)
     return record
+
+
+def _copy_case(folder: Path, params: dict) -> None:
+    """A capture that is a copy: a frozen dataset's case (verified before the run) or a suite's case folder (a real
+    capture: hashed when the run was planned)."""
+    import shutil
+
+    if "dataset" in params:
+        src, parts = Path(params["dataset"]) / "cases" / params["case"], ("plant", "views", "scan")
+    else:
+        src, parts = Path(params["folder"]), params["parts"]
+    for part in parts:
+        if (src / part).is_dir():
+            shutil.copytree(src / part, folder / part)
+        elif (src / part).is_file():
+            shutil.copyfile(src / part, folder / part)
 
 
 def _method(cache: Path, folder: Path, params: dict) -> None:

@@ -107,6 +107,15 @@ def test_real_capture_without_ground_truth(case, tmp_path):
     res, reasons = evaluate_detailed(tmp_path, root / "gt", options=FAST)
     assert res["stava.S_T"] is None and "plant/" in reasons["stava.S_T"]
     assert res["mesh_to_scan.D_cm"] is not None and res["reprojection.iou"] == 1.0
+    # the reconstruction's own traits need no ground truth; the errors and P/R/F1 do
+    full = evaluate(root / "case", root / "gt", options=FAST)
+    for name in ("height_m", "branch_count", "total_length_m", "mean_branch_length_m", "crown_area_m2"):
+        assert res[f"skeleton.{name}"] == full[f"skeleton.{name}"] and res[f"skeleton.{name}"] is not None
+    assert res["skeleton.dbh_cm"] == full["skeleton.dbh_cm"]
+    for name in ("height_error_m", "branch_count_rel_error", "dbh_error_cm", "crown_area_rel_error", "f1@1.0",
+                 "vf1@1%"):
+        assert res[f"skeleton.{name}"] is None and "plant/" in reasons[f"skeleton.{name}"]
+    assert full["skeleton.crown_area_rel_error"] == 0.0
 
 
 def test_bad_input_errors(case, tmp_path):

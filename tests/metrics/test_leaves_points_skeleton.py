@@ -8,7 +8,7 @@ import pytest
 from plantbench.errors import InputError
 from plantbench.metrics.leaves import leaf_count_metrics, leaf_detection
 from plantbench.metrics.points import cloud_metrics
-from plantbench.metrics.skeleton import dbh, sample_skeleton, skeleton_attributes, skeleton_prf
+from plantbench.metrics.skeleton import crown_area, dbh, sample_skeleton, skeleton_attributes, skeleton_prf
 from plantbench.plant import Skeleton
 
 from .synth import random_tree
@@ -114,3 +114,20 @@ def test_sample_spacing_and_attributes(rng):
                  np.array([-1, 0, 1]))
     assert dbh(s) == pytest.approx(2 * (0.1 - 0.05 * 1.3 / 3))
     assert dbh(s, breast_height=5.0) is None
+
+
+def test_crown_area_is_the_convex_hull_of_the_nodes_on_the_ground():
+    # a 2 m square of tips at several heights around a stem: area 4, whatever the heights and interior nodes
+    pos = np.array([[0.0, 0, 0], [0, 0, 1.5], [1, 1, 2.0], [-1, 1, 2.5], [-1, -1, 1.8], [1, -1, 2.2], [0.3, 0.2, 2]])
+    s = Skeleton(pos, np.full(7, 0.01), np.array([-1, 0, 1, 1, 1, 1, 1]))
+    assert crown_area(s) == pytest.approx(4.0)
+    side = 0.7
+    sq = Skeleton(np.array([[0, 0, 0], [side, 0, 1], [side, side, 1], [0, side, 1.0]]), np.full(4, 0.01),
+                  np.array([-1, 0, 1, 2]))
+    assert crown_area(sq) == pytest.approx(side**2)
+    # degenerate: fewer than 3 distinct projections, or collinear ones (a vertical stem, a planar fan)
+    stem = Skeleton(np.array([[0, 0, 0], [0, 0, 1.0], [0, 0, 2.0]]), np.full(3, 0.01), np.array([-1, 0, 1]))
+    fan = Skeleton(np.array([[0, 0, 0], [1, 0, 1.0], [2, 0, 2.0], [-1, 0, 1]]), np.full(4, 0.01),
+                   np.array([-1, 0, 1, 0]))
+    assert crown_area(stem) is None and crown_area(fan) is None
+    assert crown_area(Skeleton(np.zeros((0, 3)), np.zeros(0), np.zeros(0, int))) is None
