@@ -33,7 +33,9 @@ Conventions (documented choices where the paper is silent):
 
 from __future__ import annotations
 
+import functools
 import itertools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -153,10 +155,10 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 def _point_at(points: np.ndarray, cum: np.ndarray, s: float) -> np.ndarray:
     """Point at arc length s along a polyline with cumulative lengths ``cum`` (cum[0] = 0)."""
-    i = int(np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(points) - 2))
+    i = min(max(int(np.searchsorted(cum, s, side="right")) - 1, 0), len(points) - 2)
     seg = cum[i + 1] - cum[i]
     f = 0.0 if seg <= _EPS else (s - cum[i]) / seg
-    return points[i] + np.clip(f, 0.0, 1.0) * (points[i + 1] - points[i])
+    return points[i] + min(max(f, 0.0), 1.0) * (points[i + 1] - points[i])
 
 
 def polyline_properties(points: np.ndarray, radii: np.ndarray, chord_radii: float = 5.0) -> dict:
@@ -164,32 +166,67 @@ def polyline_properties(points: np.ndarray, radii: np.ndarray, chord_radii: floa
 
     points : (m, 3) float, m >= 2; radii : (m,) float
     """
-    seg = np.diff(points, axis=0)
+    props = _polylines(points, radii, [np.arange(len(points))], chord_radii)
+    return {k: (float(v[0]) if v.ndim == 1 else v[0]) for k, v in props.items()}
+
+
+def _polylines(pos: np.ndarray, rad: np.ndarray, chains: list[np.ndarray], chord_radii: float) -> dict:
+    """:func:`polyline_properties` of several polylines (index arrays into ``pos`` and ``rad``, each of at least
+    two points) at once: a dict of arrays, one row per polyline.
+
+    Elementwise steps run on all polylines together; sums, the chord norm, the slope and the arc-length lookups run
+    per polyline on the same numpy calls as for a single one, so that the values are the same to the last bit.
+    """
+    n = len(chains)
+    idx = np.concatenate(chains) if n else np.zeros(0, np.int64)
+    pts = pos[idx]
+    cnt = np.array([len(c) for c in chains], np.int64)
+    first = np.cumsum(cnt) - cnt  # polyline i: pts[first[i]:last[i] + 1]
+    last = first + cnt - 1
+    keep = np.ones(max(len(pts) - 1, 0), bool)
+    keep[last[:-1]] = False  # no difference across two polylines
+    seg = (pts[1:] - pts[:-1])[keep]
     sl = np.linalg.norm(seg, axis=1)
-    length = float(sl.sum())
-    nz = seg[sl > _EPS] / sl[sl > _EPS, None]
-    deformation = float(_angle(nz[:-1], nz[1:]).sum()) if len(nz) > 1 else 0.0
-    chord = points[-1] - points[0]
-    dse = float(np.linalg.norm(chord))
-    straightness = dse / length if length > _EPS else 1.0
-    slope = float(np.arcsin(np.clip(chord[2] / dse, -1.0, 1.0))) if dse > _EPS else 0.0
-    cum = np.concatenate([[0.0], np.cumsum(sl)])
-    a = min(length, chord_radii * float(radii[0]))
-    b = min(length, chord_radii * float(radii[-1]))
-    init_dir = _unit(_point_at(points, cum, a) - points[0]) if a > _EPS else (nz[0] if len(nz) else np.zeros(3))
-    final_dir = _unit(points[-1] - _point_at(points, cum, length - b)) if b > _EPS else \
-        (nz[-1] if len(nz) else np.zeros(3))
-    return {
-        "length": length,
-        "diameter": float(2.0 * np.max(radii)),
-        "deformation": deformation,
-        "straightness": straightness,
-        "slope": slope,
-        "first_dir": nz[0] if len(nz) else np.zeros(3),
-        "last_dir": nz[-1] if len(nz) else np.zeros(3),
-        "init_dir": init_dir,
-        "final_dir": final_dir,
-    }
+    s0 = first - np.arange(n)  # polyline i: segments s0[i]:s0[i] + cnt[i] - 1
+    ok = sl > _EPS
+    nz = seg[ok] / sl[ok, None]
+    z0 = np.concatenate([[0], np.cumsum(ok)])[np.append(s0, len(sl))]  # polyline i: nz[z0[i]:z0[i + 1]]
+    has = z0[1:] > z0[:-1]
+    same = np.ones(max(len(nz) - 1, 0), bool)
+    cut = z0[1:-1]
+    same[cut[(cut > 0) & (cut < len(nz))] - 1] = False  # no angle across two polylines
+    ang = _angle(nz[:-1][same], nz[1:][same])
+    a0 = np.concatenate([[0], np.cumsum(np.maximum(np.diff(z0) - 1, 0))])  # polyline i: ang[a0[i]:a0[i + 1]]
+    out = {k: np.zeros(n) for k in ("length", "deformation", "straightness", "slope")}
+    out["diameter"] = 2.0 * np.maximum.reduceat(rad[idx], first) if n else np.zeros(0)
+    out["first_dir"] = np.zeros((n, 3))
+    out["last_dir"] = np.zeros((n, 3))
+    out["first_dir"][has] = nz[z0[:-1][has]]
+    out["last_dir"][has] = nz[z0[1:][has] - 1]
+    raw = np.zeros((2, n, 3))  # init / final chord vectors, normalised together below
+    use = np.zeros((2, n), bool)
+    for i in range(n):
+        P = pts[first[i]:last[i] + 1]
+        sli = sl[s0[i]:s0[i] + cnt[i] - 1]
+        length = float(sli.sum())
+        if a0[i + 1] > a0[i]:
+            out["deformation"][i] = float(ang[a0[i]:a0[i + 1]].sum())
+        chord = P[-1] - P[0]
+        dse = float(np.linalg.norm(chord))
+        out["length"][i] = length
+        out["straightness"][i] = dse / length if length > _EPS else 1.0
+        out["slope"][i] = float(np.arcsin(min(max(chord[2] / dse, -1.0), 1.0))) if dse > _EPS else 0.0
+        cum = np.concatenate([[0.0], np.cumsum(sli)])
+        a = min(length, chord_radii * float(rad[idx[first[i]]]))
+        b = min(length, chord_radii * float(rad[idx[last[i]]]))
+        if a > _EPS:
+            raw[0, i], use[0, i] = _point_at(P, cum, a) - P[0], True
+        if b > _EPS:
+            raw[1, i], use[1, i] = P[-1] - _point_at(P, cum, length - b), True
+    unit = _unit(raw)
+    out["init_dir"] = np.where(use[0, :, None], unit[0], out["first_dir"])
+    out["final_dir"] = np.where(use[1, :, None], unit[1], out["last_dir"])
+    return out
 
 
 def branch_graph(skeleton: Skeleton, *, chord_radii: float = 5.0) -> BranchGraph:
@@ -199,10 +236,7 @@ def branch_graph(skeleton: Skeleton, *, chord_radii: float = 5.0) -> BranchGraph
     n = len(chains)
     last_to_chain = {int(c[-1]): i for i, c in enumerate(chains)}
     parent = np.array([last_to_chain.get(int(c[0]), -1) for c in chains], np.int64)
-    props = [polyline_properties(pos[c], rad[c], chord_radii) for c in chains]
-
-    def col(key: str, shape: tuple = ()) -> np.ndarray:
-        return np.array([p[key] for p in props], float).reshape((n, *shape))
+    props = _polylines(pos, rad, chains, chord_radii)
 
     has_child = np.zeros(n, bool)
     has_child[parent[parent >= 0]] = True
@@ -212,17 +246,17 @@ def branch_graph(skeleton: Skeleton, *, chord_radii: float = 5.0) -> BranchGraph
     z = pos[:, 2]
     return BranchGraph(
         parent=parent,
-        length=col("length"),
-        diameter=col("diameter"),
-        deformation=col("deformation"),
-        straightness=col("straightness"),
-        slope=col("slope"),
+        length=props["length"],
+        diameter=props["diameter"],
+        deformation=props["deformation"],
+        straightness=props["straightness"],
+        slope=props["slope"],
         start=pos[[int(c[0]) for c in chains]].reshape(n, 3),
         end=pos[[int(c[-1]) for c in chains]].reshape(n, 3),
-        first_dir=col("first_dir", (3,)),
-        last_dir=col("last_dir", (3,)),
-        init_dir=col("init_dir", (3,)),
-        final_dir=col("final_dir", (3,)),
+        first_dir=props["first_dir"],
+        last_dir=props["last_dir"],
+        init_dir=props["init_dir"],
+        final_dir=props["final_dir"],
         crown_points=crown,
         tips=tips,
         z_range=np.array([z.min(), z.max()]) if len(z) else np.zeros(2),
@@ -390,67 +424,167 @@ def _prepare(g: BranchGraph, max_chain: int) -> _Prepared:
     junction = np.zeros(n)  # turning angle between a branch's parent's last segment and its own first one
     has_parent = g.parent >= 0
     junction[has_parent] = _angle(g.last_dir[g.parent[has_parent]], g.first_dir[has_parent])
-    lens, diams, shapes, sides, bottoms = [], [], [], [], []
-    start = np.zeros(n + 1, np.int64)
-    count = np.zeros(n + 1, np.int64)
-    for top in range(n):
-        start[top] = len(lens)
-        stack = [[top]]
-        while stack:
-            path = stack.pop()
-            bottom = path[-1]
-            if len(path) == 1:
-                L, D, sh, side = g.length[top], g.diameter[top], shape[top], 0.0
-            else:
-                L = g.length[path].sum()
-                D = g.diameter[path].max()
-                alpha = g.deformation[path].sum() + junction[path[1:]].sum()
-                chord = g.end[bottom] - g.start[top]
-                dse = float(np.linalg.norm(chord))
-                straight = dse / L if L > _EPS else 1.0
-                slope = float(np.arcsin(np.clip(chord[2] / dse, -1, 1))) if dse > _EPS else 0.0
-                sh = np.array([slope, straight, alpha])
-                side = sum(fcost[a] - tcost[b] for a, b in zip(path[:-1], path[1:]))
-            lens.append(L)
-            diams.append(D)
-            shapes.append(sh)
-            sides.append(side)
-            bottoms.append(bottom)
-            if len(path) < max_chain:
-                stack.extend(path + [k] for k in reversed(kids[bottom]))
-        count[top] = len(lens) - start[top]
-    start[vroot] = len(lens)
-    count[vroot] = 1
-    lens.append(0.0)
-    diams.append(0.0)
-    shapes.append(np.zeros(3))
-    sides.append(0.0)
-    bottoms.append(vroot)
+    start, count, ch = _chains(g, shape, junction, fcost, tcost, max_chain)
+    start, count = np.append(start, len(ch["len"])), np.append(count, 1)
+    ch = {k: np.concatenate([v, np.zeros((1, *v.shape[1:]), v.dtype)]) for k, v in ch.items()}
+    ch["bottom"][-1] = vroot
     return _Prepared(
         n=n, children=kids, kids_pad=kids_pad, degree=degree, height=height, tcost=tcost, fcost=fcost,
-        chain_start=start, chain_count=count, ch_len=np.array(lens), ch_diam=np.array(diams),
-        ch_shape=np.array(shapes).reshape(-1, 3), ch_side=np.array(sides), ch_bottom=np.array(bottoms, np.int64),
+        chain_start=start, chain_count=count, ch_len=ch["len"], ch_diam=ch["diam"], ch_shape=ch["shape"],
+        ch_side=ch["side"], ch_bottom=ch["bottom"],
     )
 
 
-_PERMS = {k: np.array(list(itertools.permutations(range(k))), np.int64) for k in range(1, 5)}
-_BLOCK = 1 << 22  # chain pairs evaluated per numpy pass (bounds memory)
+def _chains(g: BranchGraph, shape: np.ndarray, junction: np.ndarray, fcost: np.ndarray, tcost: np.ndarray,
+            max_chain: int) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Every downward path of at most ``max_chain`` branches, in depth-first pre-order per top branch: the first
+    path and number of paths per top, and each path's length, diameter, shape (slope, straightness, deformation),
+    side cost (subtrees hanging off it, deleted) and bottom branch.
+
+    A path of several branches is Stava's join: lengths and deformations summed (with the turning angles at the
+    joints), the largest diameter, straightness and slope of the chord from the top's start to the bottom's end.
+    Sums run from the top down, as np.sum does for fewer than 8 terms; the chord norm is np.linalg.norm's (a dot
+    product).
+    """
+    n = len(g)
+    anc = [np.arange(n)]  # anc[j]: the j-th ancestor of each branch (-1: none)
+    for _ in range(max_chain - 1):
+        anc.append(np.where(anc[-1] >= 0, g.parent[np.maximum(anc[-1], 0)], -1))
+    paths = []
+    for m in range(1, max_chain + 1):
+        ok = anc[m - 1] >= 0
+        rows = np.full((int(ok.sum()), max_chain), -1, np.int64)
+        for j in range(m):  # column j: the j-th branch from the top
+            rows[:, j] = anc[m - 1 - j][ok]
+        paths.append(rows)
+    P = np.concatenate(paths) if paths else np.zeros((0, max_chain), np.int64)
+    P = P[np.lexsort(P.T[::-1])]  # by top, then by each next branch (children in index order): pre-order
+    top, size = P[:, 0], np.count_nonzero(P >= 0, axis=1)
+    bottom = P[np.arange(len(P)), size - 1]
+    length, diam, alpha = g.length[top].copy(), g.diameter[top].copy(), g.deformation[top].copy()
+    junc, side = np.zeros(len(P)), np.zeros(len(P))
+    for j in range(1, max_chain):
+        v, b, a = P[:, j] >= 0, P[P[:, j] >= 0, j], P[P[:, j] >= 0, j - 1]
+        length[v] += g.length[b]
+        diam[v] = np.maximum(diam[v], g.diameter[b])
+        alpha[v] += g.deformation[b]
+        junc[v] = junction[b] if j == 1 else junc[v] + junction[b]
+        side[v] = fcost[a] - tcost[b] if j == 1 else side[v] + (fcost[a] - tcost[b])
+    chord = g.end[bottom] - g.start[top]
+    dse = np.sqrt(np.array([c.dot(c) for c in chord])) if len(P) else np.zeros(0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        straight = np.where(length > _EPS, dse / length, 1.0)
+        slope = np.where(dse > _EPS, np.arcsin(np.clip(chord[:, 2] / dse, -1, 1)), 0.0)
+    joined = np.stack([slope, straight, alpha + junc], axis=1)
+    single = size == 1
+    joined[single] = shape[top[single]]
+    ch = {"len": length, "diam": diam, "shape": joined.reshape(-1, 3), "side": side, "bottom": bottom}
+    return np.searchsorted(top, np.arange(n)), np.bincount(top, minlength=n), ch
 
 
-def _gamma_outer(a: dict, b: dict, c: float, p: float) -> np.ndarray:
-    """Assign cost between every chain of ``a`` (rows) and of ``b`` (columns); same values as assign_cost."""
+_BLOCK = 1 << 19  # node pairs per block (bounds memory)
+_CHUNK = 1 << 15  # chain pairs per pass of the chain costs (temporaries that stay in cache)
+_TEMP = 1 << 21  # elements of one child-matching temporary (bounds memory)
+_MAX_MAPS = 720  # child matchings with more candidate maps are solved pair by pair with a linear assignment
+
+
+def _relabel(t: _Prepared) -> _Prepared:
+    """The same tree with its nodes renumbered by subtree height, then degree, then parent: every height group is a
+    contiguous range of indices, sorted by degree, and the children of neighbouring nodes are near each other (the
+    virtual root, the only node of the largest height, stays at n)."""
+    n = t.n
+    parent = np.full(n + 1, n, np.int64)
+    parent[t.kids_pad[t.kids_pad <= n]] = np.nonzero(t.kids_pad <= n)[0]
+    start = np.searchsorted(np.sort(t.height), np.arange(int(t.height.max()) + 1))
+    inv = np.empty(n + 2, np.int64)  # old -> new index
+    inv[n:] = n, n + 1
+    for h in range(int(t.height.max()) - 1, -1, -1):  # parents (greater heights) first
+        nodes = np.flatnonzero(t.height == h)
+        nodes = nodes[np.lexsort((inv[parent[nodes]], t.degree[nodes]))]
+        inv[nodes] = start[h] + np.arange(len(nodes))
+    order = np.empty(n + 1, np.int64)
+    order[inv[: n + 1]] = np.arange(n + 1)
+    ext = np.append(order, n + 1)
+    return _Prepared(
+        n=n, children=[inv[t.children[i]].tolist() for i in order.tolist()], kids_pad=inv[t.kids_pad[order]],
+        degree=t.degree[ext], height=t.height[order], tcost=t.tcost[ext], fcost=t.fcost[ext],
+        chain_start=t.chain_start[order], chain_count=t.chain_count[order], ch_len=t.ch_len, ch_diam=t.ch_diam,
+        ch_shape=t.ch_shape, ch_side=t.ch_side, ch_bottom=inv[t.ch_bottom],
+    )
+
+
+@dataclass
+class _Group:
+    """What every block of the dynamic programme needs about nodes lo:hi of one relabelled tree, built once.
+
+    The nodes are sorted by degree (:func:`_relabel`): each degree class (0; 1-2; 3-4; 5-8; ...) is a contiguous
+    run, the leaves come first and the nodes of the tree's largest degree last.
+    """
+
+    sl: slice  # lo:hi
+    tcost: np.ndarray
+    fcost: np.ndarray
+    ksum: np.ndarray  # cost of the children's subtrees together (all of them deleted / inserted)
+    leaves: int  # the first ``leaves`` nodes have no child
+    full: int  # nodes full: (relative to lo) have the tree's largest degree (no dummy among their padded children)
+    runs: list  # (lo, hi, kids (hi - lo, k)) per degree class >= 1, relative to lo; kids padded with the dummy
+    pairs: int  # nodes leaves:leaves + pairs have one or two children
+    kid: np.ndarray  # the children of the nodes with children, node after node; two each (one twice) for ``pairs``
+    kid_off: np.ndarray  # first entry in kid[2 * pairs:] of each node after those
+    kid_t: np.ndarray  # tcost[kid]
+    kid_f: np.ndarray  # fcost[kid]
+    ch: dict  # chain attributes (:func:`_chain_block`)
+
+    def __len__(self) -> int:
+        return self.sl.stop - self.sl.start
+
+
+def _group(t: _Prepared, lo: int, hi: int, c: float) -> _Group:
+    nodes = np.arange(lo, hi)
+    deg = t.degree[lo:hi]
+    cls = np.where(deg > 0, np.maximum(1, np.ceil(np.log2(np.maximum(deg, 1)))), 0).astype(np.int64)
+    leaves = int(np.count_nonzero(deg == 0))
+    runs = []
+    for k in np.unique(cls[leaves:]).tolist():
+        a, b = (int(x) for x in np.searchsorted(cls, [k, k + 1]))
+        runs.append((a, b, t.kids_pad[lo + a:lo + b, : int(deg[b - 1])]))
+    pairs = int(np.searchsorted(deg, 3)) - leaves
+    two = t.kids_pad[lo + leaves:lo + leaves + pairs][:, [0, min(1, t.kids_pad.shape[1] - 1)]]
+    two[:, 1] = np.where(deg[leaves:leaves + pairs] == 1, two[:, 0], two[:, 1])
+    rest = deg[leaves + pairs:]
+    width = int(deg[-1])
+    kid = np.concatenate([two.ravel(), t.kids_pad[lo + leaves + pairs:hi, :width][np.arange(width) < rest[:, None]]])
+    return _Group(sl=slice(lo, hi), tcost=t.tcost[lo:hi], fcost=t.fcost[lo:hi],
+                  ksum=t.tcost[t.kids_pad[lo:hi]].sum(axis=1), leaves=leaves,
+                  full=int(np.searchsorted(deg, t.kids_pad.shape[1])), runs=runs, pairs=pairs, kid=kid,
+                  kid_off=np.concatenate([[0], np.cumsum(rest)[:-1]]).astype(np.int64), kid_t=t.tcost[kid],
+                  kid_f=t.fcost[kid], ch=_chain_block(t, nodes, c))
+
+
+def _chain_block(t: _Prepared, nodes: np.ndarray, c: float) -> dict:
+    """Attributes of every chain topped by ``nodes`` (contiguous per node; "off": each node's first chain).
+
+    "nden" holds -max(2 c^2 |x|^2, 1e-300) per shape descriptor x (rows: slope, straightness, deformation):
+    rounding is monotone, so the elementwise maximum of two of these is exactly the negated denominator
+    -max(2 c^2 min(|x|, |y|)^2, 1e-300) of descriptor_delta.
+    """
+    cnt = t.chain_count[nodes]
+    off = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    idx = np.repeat(t.chain_start[nodes] - off, cnt) + np.arange(int(cnt.sum()))
+    shape = np.ascontiguousarray(t.ch_shape[idx].T)
+    nden = -np.maximum((np.abs(shape) * np.abs(shape)) * (2.0 * c * c), 1e-300)
+    return {"shape": shape, "nden": nden, "len": t.ch_len[idx], "diam": t.ch_diam[idx], "side": t.ch_side[idx],
+            "bottom": t.ch_bottom[idx], "off": off}
+
+
+def _gamma_outer(a: dict, r: slice, b: dict, p: float) -> np.ndarray:
+    """Assign cost between the chains ``r`` of ``a`` (rows) and every chain of ``b`` (columns); same values as
+    assign_cost."""
     acc = None
-    k = 2.0 * c * c
     for j in range(3):
-        x, y = a["shape"][j][:, None], b["shape"][j][None, :]
-        sig = np.minimum(a["abs"][j][:, None], b["abs"][j][None, :])
-        den = sig * sig
-        den *= k
-        np.maximum(den, 1e-300, out=den)
-        d = x - y
+        d = np.subtract.outer(a["shape"][j, r], b["shape"][j])
         d *= d
-        d /= den
-        np.negative(d, out=d)
+        d /= np.maximum.outer(a["nden"][j, r], b["nden"][j])  # -(a - b)^2 / (2 sigma^2)
         np.expm1(d, out=d)
         np.negative(d, out=d)  # delta in [0, 1]
         if p == 2.5:
@@ -462,92 +596,139 @@ def _gamma_outer(a: dict, b: dict, c: float, p: float) -> np.ndarray:
         acc = d if acc is None else acc.__iadd__(d)
     acc /= 3.0
     acc **= 1.0 / p  # s
-    la, lb = a["len"][:, None], b["len"][None, :]
-    da, db = a["diam"][:, None], b["diam"][None, :]
-    lmin = np.minimum(la, lb)
-    acc *= lmin
-    acc *= da + db
-    longer = np.where(la <= lb, db, da)
-    longer *= np.maximum(la, lb) - lmin
+    la, lb, da, db = a["len"][r], b["len"], a["diam"][r], b["diam"]
+    acc *= np.minimum.outer(la, lb)
+    acc *= np.add.outer(da, db)
+    # (b_L(long) - b_L(short)) b_D(long): fl(la - lb) is exact in sign and |fl(la - lb)| = fl(lmax - lmin)
+    diff = np.subtract.outer(la, lb)
+    longer = diff * da[:, None]
+    np.negative(diff, out=diff)
+    diff *= db[None, :]
+    np.maximum(longer, diff, out=longer)
     acc += longer
     return acc
 
 
-def _chain_block(t: _Prepared, nodes: np.ndarray) -> tuple[dict, np.ndarray]:
-    """Chain attributes of every chain topped by ``nodes`` (contiguous per node) and each node's first row."""
-    cnt = t.chain_count[nodes]
-    off = np.concatenate([[0], np.cumsum(cnt)[:-1]])
-    idx = np.repeat(t.chain_start[nodes] - off, cnt) + np.arange(int(cnt.sum()))
-    shape = t.ch_shape[idx]
-    cols = [np.ascontiguousarray(shape[:, j]) for j in range(3)]
-    return {"shape": cols, "abs": [np.abs(x) for x in cols], "len": t.ch_len[idx], "diam": t.ch_diam[idx],
-            "side": t.ch_side[idx], "bottom": t.ch_bottom[idx]}, off
+@functools.cache
+def _maps(k_rows: int, k_cols: int) -> tuple[np.ndarray, np.ndarray]:
+    """Injective maps of the shorter side of a (k_rows, k_cols) matrix into the longer: per map, the flat entry
+    (row * k_cols + column) taken for each element of the shorter side, and the longer side's indices left over."""
+    small, large = sorted((k_rows, k_cols))
+    maps = list(itertools.permutations(range(large), small))
+    if k_rows <= k_cols:
+        sel = [[i * k_cols + m[i] for i in range(small)] for m in maps]
+    else:
+        sel = [[m[i] * k_cols + i for i in range(small)] for m in maps]
+    left = np.array([[j for j in range(large) if j not in m] for m in maps], np.int64).reshape(len(maps), -1)
+    return np.array(sel, np.int64).reshape(len(maps), small), left
 
 
-def _block_matching(T, t1: _Prepared, t2: _Prepared, A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """(len(A), len(B)) min-cost matching of the child subtrees (unmatched children deleted / inserted)."""
-    out = np.zeros((len(A), len(B)))
-    k = min(4, max(int(t1.degree[A].max()), int(t2.degree[B].max())))
-    if k > 0:
-        ka, kb = _pad(t1.kids_pad[A], k, t1.n + 1), _pad(t2.kids_pad[B], k, t2.n + 1)
-        cost = {}
-        for i in range(k):
-            for j in range(k):
-                m = T[np.ix_(ka[:, i], kb[:, j])]
-                cost[i, j] = np.minimum(m, t1.tcost[ka[:, i]][:, None] + t2.tcost[kb[:, j]][None, :])
-        out[:] = np.inf
-        for perm in _PERMS[k]:
-            tot = cost[0, int(perm[0])].copy()
-            for i in range(1, k):
-                tot += cost[i, int(perm[i])]
-            np.minimum(out, tot, out=out)
-    big_a = np.flatnonzero(t1.degree[A] > 4)
-    big_b = np.flatnonzero(t2.degree[B] > 4)
-    if len(big_a) or len(big_b):
-        from scipy.optimize import linear_sum_assignment
-
-        # Rectangular form of the padded assignment: deleting every child of both sides costs the sum of their
-        # subtree costs; matching a with b changes that by gain = min(T, ta + tb) - ta - tb <= 0, so the best
-        # matching pairs every child of the smaller side (what the padding with empty subtrees allowed).
-        pairs = {(i, j) for i in big_a for j in range(len(B))} | {(i, j) for i in range(len(A)) for j in big_b}
-        for i, j in pairs:
-            c1, c2 = t1.children[A[i]], t2.children[B[j]]
-            ta, tb = t1.tcost[c1], t2.tcost[c2]
-            total = ta.sum() + tb.sum()
-            if c1 and c2:
-                gain = T[np.ix_(c1, c2)] - ta[:, None] - tb[None, :]
-                np.minimum(gain, 0.0, out=gain)
-                if min(gain.shape) == 1:
-                    total += gain.min()
-                else:
-                    r, cc = linear_sum_assignment(gain)
-                    total += gain[r, cc].sum()
-            out[i, j] = total
+def _block_matching(T, t1: _Prepared, t2: _Prepared, ga: _Group, gb: _Group) -> np.ndarray:
+    """(V, |A|, |B|) min-cost matching of the child subtrees (unmatched children deleted / inserted), per pair of
+    degree-class runs: enumerating the injective maps of the fewer children into the more, or with a linear
+    assignment per pair where there are more than _MAX_MAPS of them."""
+    out = np.empty((len(T), len(ga), len(gb)))
+    out[:, : ga.leaves] = gb.ksum
+    out[:, :, : gb.leaves] = ga.ksum[:, None]
+    for lo_a, hi_a, ka in ga.runs:
+        for lo_b, hi_b, kb in gb.runs:
+            block = (slice(None), slice(lo_a, hi_a), slice(lo_b, hi_b))
+            k_small, k_large = sorted((ka.shape[1], kb.shape[1]))
+            if math.perm(k_large, k_small) <= _MAX_MAPS:
+                out[block] = _match_runs(T, t1, t2, ka, kb, *_maps(ka.shape[1], kb.shape[1]))
+                continue
+            A = range(ga.sl.start + lo_a, ga.sl.start + hi_a)
+            B = range(gb.sl.start + lo_b, gb.sl.start + hi_b)
+            for v in range(len(T)):
+                out[v, lo_a:hi_a, lo_b:hi_b] = _match_lsa(T[v], t1, t2, A, B)
     return out
 
 
-def _pad(kids: np.ndarray, k: int, dummy: int) -> np.ndarray:
-    if kids.shape[1] >= k:
-        return kids[:, :k]
-    return np.concatenate([kids, np.full((len(kids), k - kids.shape[1]), dummy, np.int64)], axis=1)
+def _match_runs(T, t1: _Prepared, t2: _Prepared, ka: np.ndarray, kb: np.ndarray, sel: np.ndarray,
+                left: np.ndarray) -> np.ndarray:
+    """Child matching of every pair of a run of ``ka`` (children padded with the dummy) and one of ``kb``.
 
-
-def _block_skip(M, base, kids, sub, rows, along_cols: bool) -> np.ndarray:
-    """Zhang's 'map into one child subtree' option for a block: base + min over children t of (M[.., t] - sub[t]).
-
-    along_cols: rows index the first tree and the children are the second tree's (columns); else transposed.
+    Entry cost c = min(T, t_a + t_b) (a dummy row or column gives the other child's subtree cost, exactly, or 0);
+    the best over every injective map of the shorter side's children into the longer side's, the longer side's
+    children left over deleted / inserted: the same optimum as the padded square assignment.
     """
-    best = None
-    for t in range(kids.shape[1]):
-        kt = kids[:, t]
-        v = (M[np.ix_(rows, kt)] - sub[kt][None, :]) if along_cols else (M[np.ix_(kt, rows)] - sub[kt][:, None])
-        best = v if best is None else np.minimum(best, v, out=best)
-    return best + (base[None, :] if along_cols else base[:, None])
+    kA, kB = ka.shape[1], kb.shape[1]
+    ka, kb = ka.T, kb.T  # (kA, |A|), (kB, |B|)
+    ta, tb = t1.tcost[ka], t2.tcost[kb]
+    rest = tb[left].sum(axis=1)[:, None, :] if kA <= kB else ta[left].sum(axis=1)[:, :, None]  # maps first
+    out = np.empty((len(T), ka.shape[1], kb.shape[1]))
+    step = max(1, _TEMP // (len(T) * kb.shape[1] * max(kA * kB, len(sel))))
+    for lo in range(0, ka.shape[1], step):
+        sl = slice(lo, lo + step)
+        cost = T[:, ka[:, None, sl, None], kb[None, :, None, :]]  # (V, kA, kB, |A|, |B|)
+        np.minimum(cost, ta[:, None, sl, None] + tb[None, :, None, :], out=cost)
+        cost = cost.reshape(len(T), kA * kB, *cost.shape[3:])
+        tot = cost[:, sel[:, 0]]
+        for i in range(1, sel.shape[1]):
+            tot += cost[:, sel[:, i]]
+        if left.shape[1]:
+            tot += rest if kA <= kB else rest[:, sl]
+        np.minimum.reduce(tot, axis=1, out=out[:, sl])
+    return out
 
 
-def _group_by(height: np.ndarray) -> list[np.ndarray]:
-    order = np.argsort(height, kind="stable")
-    return np.split(order, np.searchsorted(height[order], np.arange(1, int(height.max()) + 1)))
+def _match_lsa(T, t1: _Prepared, t2: _Prepared, A: range, B: range) -> np.ndarray:
+    """Child matching pair by pair for many children on both sides.
+
+    Rectangular form of the padded assignment: deleting every child of both sides costs the sum of their subtree
+    costs; matching a with b changes that by gain = min(T, ta + tb) - ta - tb <= 0, so the best matching pairs every
+    child of the smaller side (what the padding with empty subtrees allowed).
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    out = np.empty((len(A), len(B)))
+    for i, a in enumerate(A):
+        c1 = t1.children[a]
+        ta = t1.tcost[c1]
+        for j, b in enumerate(B):
+            c2 = t2.children[b]
+            tb = t2.tcost[c2]
+            gain = T[np.ix_(c1, c2)] - ta[:, None] - tb[None, :]
+            np.minimum(gain, 0.0, out=gain)
+            r, cc = linear_sum_assignment(gain)
+            out[i, j] = ta.sum() + tb.sum() + gain[r, cc].sum()
+    return out
+
+
+def _block_skip(M, ga: _Group, gb: _Group, along_b: bool, forest: bool) -> np.ndarray:
+    """Zhang's 'map into one child subtree' option for a block, (V, |A|, |B|): base + min over the children t of
+    (M[.., t] - sub[t]), M the forest (``forest``) or the tree distance, sub and base the delete / insert costs.
+
+    along_b: the children are the second tree's; else the first's. The dummy child (an empty subtree, where the
+    degree is below the tree's largest) gives M[.., dummy] - 0, the same for every node of the block: broadcast.
+    """
+    g = gb if along_b else ga
+    out = np.empty((len(M), len(ga), len(gb)))
+    ax = 2 if along_b else 1  # the children's parents
+    sub, base = (g.kid_f, g.fcost) if forest else (g.kid_t, g.tcost)
+    if along_b:
+        v = np.empty((len(M), len(ga), len(gb.kid)))
+        for m, w in zip(M, v):  # (np.take copies a non-contiguous input)
+            np.take(m[ga.sl], gb.kid, axis=1, out=w)
+        dummy = M[:, ga.sl, -1].copy()[..., None]  # the dummy is the last row / column
+        v -= sub
+    else:
+        v = M[:, ga.kid, gb.sl]
+        dummy = M[:, -1, None, gb.sl]
+        v -= sub[:, None]
+    m, mid = 2 * g.pairs, g.leaves + g.pairs
+
+    def part(x, a, b, step=None):  # x[..., a:b:step] along the parents' axis
+        return x[:, :, a:b:step] if along_b else x[:, a:b:step]
+
+    if g.pairs:
+        np.minimum(part(v, 0, m, 2), part(v, 1, m, 2), out=part(out, g.leaves, mid))  # (faster than reduceat)
+    if mid < len(g):
+        np.minimum.reduceat(part(v, m, None), g.kid_off, axis=ax, out=part(out, mid, None))
+    part(out, 0, g.leaves)[...] = dummy
+    np.minimum(part(out, g.leaves, g.full), dummy, out=part(out, g.leaves, g.full))
+    out += base if along_b else base[:, None]
+    return out
 
 
 def tree_edit_distance(gt: BranchGraph, pred: BranchGraph, *, c: float = 0.5, p: float = 2.5,
@@ -562,49 +743,88 @@ def tree_edit_distance(gt: BranchGraph, pred: BranchGraph, *, c: float = 0.5, p:
     with an empty subtree, or Zhang's mapping of one forest into a child's forest), then the tree distance T:
     the best assignment of a chain from a to a chain from b (chains of at most ``max_chain`` nodes: Stava's
     split and merge, side subtrees deleted / inserted) plus F of the chain ends, or Zhang's mapping of one tree
-    into a child subtree of the other.
+    into a child subtree of the other. The nodes are renumbered so that every height group is a range of rows or
+    columns of T and F; what a block needs about its nodes (:class:`_Group`) is built once and reused.
     """
-    t1, t2 = _prepare(gt, max_chain), _prepare(pred, max_chain)
+    return _tree_edit_distances(gt, pred, c, p, max_chain, False)[0]
+
+
+def _tree_edit_distances(gt: BranchGraph, pred: BranchGraph, c: float, p: float, max_chain: int,
+                         also_plain: bool) -> list[tuple[float, float]]:
+    """:func:`tree_edit_distance` with ``max_chain``, and if ``also_plain`` with max_chain = 1 too, in one pass
+    over the blocks (tables stacked along a first axis; the plain variant's assign costs are those of the single
+    branch chains, a part of the others)."""
+    t1, t2 = _relabel(_prepare(gt, max_chain)), _relabel(_prepare(pred, max_chain))
     n1, n2 = t1.n, t2.n
     d1, d2 = n1 + 1, n2 + 1
-    # T: tree distance, F: forest distance of the children; the dummy (empty subtree) row and column filled in
-    T = np.zeros((n1 + 2, n2 + 2))
-    F = np.zeros((n1 + 2, n2 + 2))
-    T[d1, :] = t2.tcost
-    T[:, d2] = t1.tcost
-    F[d1, :] = t2.fcost
-    F[:, d2] = t1.fcost
-    T[d1, d2] = F[d1, d2] = 0.0
-    g1, g2 = _group_by(t1.height), _group_by(t2.height)
-    blocks2 = [_chain_block(t2, B) for B in g2]
-    for s in range(len(g1) + len(g2) - 1):
-        for h in range(max(0, s - len(g2) + 1), min(s, len(g1) - 1) + 1):
-            B = g2[s - h]
-            cb, offb = blocks2[s - h]
-            rows_per = max(1, _BLOCK // max(1, len(cb["len"])))
-            nodes1 = g1[h]
-            step = max(1, int(rows_per / max(1.0, t1.chain_count[nodes1].mean())))
-            for lo in range(0, len(nodes1), step):
-                A = nodes1[lo:lo + step]
-                _solve_block(T, F, t1, t2, A, B, cb, offb, c, p)
-    return float(T[n1, n2]), 2.0 * max(float(t1.tcost[n1]), float(t2.tcost[n2]))
+    V = 2 if also_plain and max_chain > 1 else 1
+    # T: tree distance, F: forest distance of the children (per variant); the dummy (empty subtree) row and column
+    T, F = np.zeros((V, n1 + 2, n2 + 2)), np.zeros((V, n1 + 2, n2 + 2))
+    for M, cost1, cost2 in ((T, t1.tcost, t2.tcost), (F, t1.fcost, t2.fcost)):
+        M[:, d1, :] = cost2
+        M[:, :, d2] = cost1
+        M[:, d1, d2] = 0.0
+    g1 = np.searchsorted(t1.height, np.arange(int(t1.height[-1]) + 2)).tolist()  # group h: g1[h]:g1[h + 1]
+    g2 = np.searchsorted(t2.height, np.arange(int(t2.height[-1]) + 2)).tolist()
+    h1, h2 = len(g1) - 1, len(g2) - 1
+    groups2 = [_group(t2, g2[h], g2[h + 1], c) for h in range(h2)]
+    groups1: dict[tuple[int, int], _Group] = {}
+    for s in range(h1 + h2 - 1):
+        for h in range(max(0, s - h2 + 1), min(s, h1 - 1) + 1):
+            gb = groups2[s - h]
+            lo, hi = g1[h], g1[h + 1]
+            step = max(1, _BLOCK // len(gb))
+            for a in range(lo, hi, step):
+                ga = groups1.get((a, min(a + step, hi)))
+                if ga is None:
+                    ga = groups1[a, min(a + step, hi)] = _group(t1, a, min(a + step, hi), c)
+                _solve_block(T, F, t1, t2, ga, gb, p)
+    norm = 2.0 * max(float(t1.tcost[n1]), float(t2.tcost[n2]))
+    out = [(float(T[v, n1, n2]), norm) for v in range(V)]
+    return out + out if also_plain and V == 1 else out
 
 
-def _solve_block(T, F, t1: _Prepared, t2: _Prepared, A, B, cb, offb, c, p) -> None:
-    ka, kb = t1.kids_pad[A], t2.kids_pad[B]
-    f = _block_matching(T, t1, t2, A, B)
-    np.minimum(f, _block_skip(F, t2.fcost[B], kb, t2.fcost, A, True), out=f)
-    np.minimum(f, _block_skip(F, t1.fcost[A], ka, t1.fcost, B, False), out=f)
-    F[np.ix_(A, B)] = f
-    ca, offa = _chain_block(t1, A)
-    cost = _gamma_outer(ca, cb, c, p)
-    cost += ca["side"][:, None]
-    cost += cb["side"][None, :]
-    cost += F[np.ix_(ca["bottom"], cb["bottom"])]
-    t = np.minimum.reduceat(np.minimum.reduceat(cost, offa, axis=0), offb, axis=1)
-    np.minimum(t, _block_skip(T, t2.tcost[B], kb, t2.tcost, A, True), out=t)
-    np.minimum(t, _block_skip(T, t1.tcost[A], ka, t1.tcost, B, False), out=t)
-    T[np.ix_(A, B)] = t
+def _solve_block(T, F, t1: _Prepared, t2: _Prepared, ga: _Group, gb: _Group, p: float) -> None:
+    f = _block_matching(T, t1, t2, ga, gb)
+    np.minimum(f, _block_skip(F, ga, gb, True, True), out=f)
+    np.minimum(f, _block_skip(F, ga, gb, False, True), out=f)
+    F[:, ga.sl, gb.sl] = f
+    t = _chain_costs(F, f, ga, gb, p)
+    np.minimum(t, _block_skip(T, ga, gb, True, False), out=t)
+    np.minimum(t, _block_skip(T, ga, gb, False, False), out=t)
+    T[:, ga.sl, gb.sl] = t
+
+
+def _chain_costs(F, f: np.ndarray, ga: _Group, gb: _Group, p: float) -> np.ndarray:
+    """(V, |A|, |B|): best over the pair's chains of assign cost + side subtrees deleted / inserted + F of the
+    chain ends (variant 1, if any: single-branch chains only), in passes over a few of A's nodes at a time
+    (cache-sized temporaries). ``f``: F of the block itself."""
+    ca, cb = ga.ch, gb.ch
+    off, offb = ca["off"], cb["off"]
+    end = np.append(off[1:], len(ca["len"]))  # each node's chains: rows off[i]:end[i]
+    # one chain per node on both sides: no side subtree, the chain ends are the nodes themselves
+    single = len(ca["len"]) == len(ga) and len(offb) == len(cb["len"])
+    out = np.empty(f.shape)
+    per = max(1, _CHUNK // len(cb["len"]))  # chain rows per pass
+    lo = 0
+    while lo < len(off):
+        hi = max(lo + 1, int(np.searchsorted(end, off[lo] + per, side="right")))
+        r = slice(int(off[lo]), int(end[hi - 1]))
+        cost = _gamma_outer(ca, r, cb, p)
+        if single:
+            np.add(cost, f[:, lo:hi], out=out[:, lo:hi])
+            lo = hi
+            continue
+        if len(f) > 1:  # the plain variant: single-branch chains, the first of each node
+            np.add(np.take(cost[off[lo:hi] - off[lo]], offb, axis=1), f[1, lo:hi], out=out[1, lo:hi])
+        cost += ca["side"][r, None]
+        cost += cb["side"][None, :]
+        cost += F[0, ca["bottom"][r, None], cb["bottom"][None, :]]
+        if r.stop - r.start > hi - lo:  # some node has several chains
+            cost = np.minimum.reduceat(cost, off[lo:hi] - off[lo], axis=0)
+        out[0, lo:hi] = np.minimum.reduceat(cost, offb, axis=1) if len(offb) < cost.shape[1] else cost
+        lo = hi
+    return out
 
 
 # ------------------------------------------------------------------------------------------------ similarity
@@ -642,10 +862,13 @@ def _stava(gt: Skeleton, pred: Skeleton, params: StavaParams, variants: tuple[bo
                                p=params.p))
     d_g = float(minkowski_mean(descriptor_delta(geometric_descriptors(g1), geometric_descriptors(g2), c=params.c),
                                p=params.p))
+    if variants == (True, False):  # both in one pass
+        dists = _tree_edit_distances(g1, g2, params.c, params.p, int(params.max_chain), True)
+    else:
+        dists = [tree_edit_distance(g1, g2, c=params.c, p=params.p,
+                                    max_chain=int(params.max_chain) if split_merge else 1) for split_merge in variants]
     out = []
-    for split_merge in variants:
-        dist, norm = tree_edit_distance(g1, g2, c=params.c, p=params.p,
-                                        max_chain=int(params.max_chain) if split_merge else 1)
+    for dist, norm in dists:
         d_t = float(min(1.0, dist / norm)) if norm > 0 else 0.0
         out.append(StavaResult(1.0 - (d_s + d_g + d_t) / 3.0, d_s, d_g, d_t))
     return out

@@ -11,6 +11,7 @@ import pytest
 from scipy.optimize import linear_sum_assignment
 
 from plantbench.errors import InputError
+from plantbench.metrics import stava
 from plantbench.metrics.stava import (
     StavaParams,
     assign_cost,
@@ -145,6 +146,45 @@ def test_tree_edit_distance_with_high_degree_nodes_matches_recursive_reference(m
         assert max(len(k) for k in g1.children()) > 4
         got, _ = tree_edit_distance(g1, g2, max_chain=max_chain)
         assert got == pytest.approx(naive_tree_distance(a, b, max_chain), rel=1e-9, abs=1e-12)
+
+
+def bushy_tree(rng: np.random.Generator, n: int) -> Skeleton:
+    """A random recursive tree (each node hangs from a random earlier one): branch-graph nodes of many degrees, also
+    within one subtree height."""
+    pos, rad, par = [np.zeros(3)], [0.03], [-1]
+    for i in range(1, n):
+        p = int(rng.integers(0, i))
+        d = rng.normal(0, 1, 3) + [0, 0, 1.5]
+        pos.append(pos[p] + 0.05 * d / np.linalg.norm(d))
+        rad.append(0.6 * rad[p] + 0.002)
+        par.append(p)
+    return Skeleton(np.array(pos), np.array(rad), np.array(par))
+
+
+@pytest.mark.parametrize("small_limits", [False, True])
+def test_tree_edit_distance_matches_recursive_reference_on_larger_trees(monkeypatch, small_limits):
+    """Trees with several height groups, degree classes 1-2, 3-4, 5-8 and 9-16 (conifers with 3-5 against 6-9
+    laterals per whorl: more child maps than enumerated, the linear-assignment fallback; bushy trees: several degrees
+    in one class and height) and chains of 1-3 branches, both variants at once as stava_similarities computes them.
+
+    With small_limits, blocks hold a few node pairs, chain costs take several passes, child matchings are split, and
+    every matching with more than two children on a side goes through the linear assignment."""
+    if small_limits:
+        monkeypatch.setattr(stava, "_BLOCK", 6)
+        monkeypatch.setattr(stava, "_CHUNK", 40)
+        monkeypatch.setattr(stava, "_TEMP", 16)
+        monkeypatch.setattr(stava, "_MAX_MAPS", 2)
+    rng = np.random.default_rng(7)
+    a = random_tree(rng, 14)
+    pairs = [(a, prune_terminal(a, 0.3, rng)), (a, random_tree(rng, 12)),
+             (whorl_tree(rng, 3, (3, 6)), whorl_tree(rng, 3, (6, 10))), (bushy_tree(rng, 40), bushy_tree(rng, 36))]
+    for x, y in pairs:
+        g1, g2 = branch_graph(x), branch_graph(y)
+        got = stava._tree_edit_distances(g1, g2, 0.5, 2.5, 3, True)
+        for (d, _), max_chain in zip(got, (3, 1)):
+            assert d == pytest.approx(naive_tree_distance(x, y, max_chain), rel=1e-9, abs=1e-12)
+        d2, _ = tree_edit_distance(g1, g2, max_chain=2)
+        assert d2 == pytest.approx(naive_tree_distance(x, y, 2), rel=1e-9, abs=1e-12)
 
 
 def test_stava_similarities_is_both_variants(rng):
