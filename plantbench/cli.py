@@ -270,7 +270,7 @@ def calibrate(
     suite: Annotated[str, typer.Option(help="Suite name or path to a suite TOML.")] = "multiview",
     workers: Annotated[int, typer.Option(help="Parallel workers.")] = 1,
     out: Annotated[Path, typer.Option(help="Run folder (the cache is shared with `plantbench run`).")] = Path("runs"),
-    reports: Annotated[Path, typer.Option(help="Where README.md, ladder.csv, verdicts.csv and the figure go.")] = Path(
+    reports: Annotated[Path, typer.Option(help="Where README.md, ladder.csv.gz, verdicts.csv and the figure go.")] = Path(
         "reports/calibration"),
     seed: Annotated[Optional[int], typer.Option(  # noqa: UP045
         help="Replace every case's seed (plants that are not in the suite).")] = None,

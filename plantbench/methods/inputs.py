@@ -27,9 +27,11 @@ import shutil
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 from plantbench.errors import InputError
 
-__all__ = ["prepare_inputs", "run_isolated", "is_oracle", "reads_ground_truth", "VIEW_ENTRIES", "GROUND_TRUTH"]
+__all__ = ["prepare_inputs", "run_isolated", "is_oracle", "reads_ground_truth", "check_cloud", "read_input_points", "VIEW_ENTRIES", "GROUND_TRUTH"]
 
 VIEW_ENTRIES = ("images", "cameras.json", "transforms.json")
 """What a method reading views gets of ``views/`` as it is (besides colmap/ and capture.json, filtered)."""
@@ -172,3 +174,34 @@ def run_isolated(method, capture_dir: str | os.PathLike, out_dir: str | os.PathL
             if target.is_dir():
                 shutil.rmtree(target)
             shutil.move(str(item), str(target))
+
+
+def check_cloud(points, *, min_points: int, what: str = "points", method: str = "a points method",
+                why: str = "") -> np.ndarray:
+    """Validate a points method's cloud: (n, 3), finite, at least ``min_points`` points, not all coincident;
+    returns float64. Too few points: 'WHAT: n points; METHOD needs at least MIN (WHY)'."""
+    from plantbench.plant import check_shape
+
+    pts = check_shape(what, points, (-1, 3), "f")
+    if len(pts) < min_points:
+        raise InputError(f"{what}: {len(pts)} points; {method} needs at least {min_points}" + (f" ({why})" if why
+                                                                                            else ""))
+    if np.ptp(pts, axis=0).max() <= 0:
+        raise InputError(f"{what}: all points coincide")
+    return pts
+
+
+def read_input_points(folder: str | os.PathLike, *, min_points: int, method: str = "a points method",
+                      why: str = "") -> np.ndarray:
+    """The coordinates of a points method's input, ``folder/points.ply`` (extra columns ignored), checked by
+    :func:`check_cloud`; every error names the file. For reference and third-party methods alike."""
+    from plantbench.io.ply import read_points
+
+    path = Path(folder) / "points.ply"
+    if not path.is_file():
+        raise InputError(f"no points.ply ({method} reads the scan or the mvs cloud)", path=path)
+    pts, _ = read_points(path)
+    try:
+        return check_cloud(pts, min_points=min_points, method=method, why=why)
+    except InputError as exc:
+        raise InputError(str(exc), path=path) from None

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["LADDER", "calibration_suite", "run_calibration", "verdicts", "ladder_means", "calibration_markdown",
-           "ladder_figure", "write_calibration", "ALLOWED_FAILURES"]
+           "ladder_figure", "write_calibration", "ALLOWED_FAILURES", "LADDER_FILE"]
 
 LADDER = ("gt", "orders<=3", "orders<=2", "orders<=1", "jitter-0.25%", "jitter-0.5%", "jitter-1%", "jitter-2%",
           "scale-1.05", "scale-1.1", "scale-1.25", "leaves-10%", "leaves-25%", "leaves-50%", "prior-a", "prior-b",
@@ -36,6 +36,8 @@ LADDER = ("gt", "orders<=3", "orders<=2", "orders<=1", "jitter-0.25%", "jitter-0
 JITTER = ("gt", "jitter-0.25%", "jitter-0.5%", "jitter-1%", "jitter-2%")
 PRUNING = ("gt", "orders<=3", "orders<=2", "orders<=1")
 PRIORS = ("prior-a", "prior-b")
+LADDER_FILE = "ladder.csv.gz"
+"""The committed ladder table (gzip: ~90 metrics x 17 rungs x the plants)."""
 ALLOWED_FAILURES = 0.1
 """Share of plants on which a discriminating metric may misorder the rungs (1 of 10)."""
 
@@ -245,7 +247,7 @@ def ladder_figure(table, metrics: list[str], path: str | os.PathLike) -> Path:
 
 
 def write_calibration(table, folder: str | os.PathLike, *, header: str = "") -> tuple[object, list[Path]]:
-    """Write ladder.csv (every rung's every metric), verdicts.csv, ladder.png and README.md into ``folder``;
+    """Write ladder.csv.gz (every rung's every metric), verdicts.csv, ladder.png and README.md into ``folder``;
     returns (the verdict frame, the files written)."""
     from plantbench.io.atomic import atomic_write
     from plantbench.metrics.info import HEADLINE_FIDELITY
@@ -253,15 +255,17 @@ def write_calibration(table, folder: str | os.PathLike, *, header: str = "") -> 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     verdict = verdicts(table)
-    with atomic_write(folder / "ladder.csv", "w") as fh:
-        table.to_csv(fh, index=False)
+    ladder = table.assign(rung=table["method"].map(_rung), value=table["value"].where(table["status"] == "ok"))
+    with atomic_write(folder / LADDER_FILE) as fh:  # one row per plant, rung and metric; failed cells empty
+        ladder[["case", "species", "family", "rung", "metric", "value"]].to_csv(
+            fh, index=False, compression={"method": "gzip", "mtime": 0})
     with atomic_write(folder / "verdicts.csv", "w") as fh:
         verdict.to_csv(fh, index=False)
     figure = ladder_figure(table, list(HEADLINE_FIDELITY) + ["support.skeleton@1%", "stava.S_T", "leaves.f1",
                                                              "skeleton.f1@1.0", "mesh_to_surface.D_cm"],
                            folder / "ladder.png")
-    header += (" ladder.csv holds every rung's every metric, verdicts.csv the verdicts; the figure shows the "
+    header += (f" {LADDER_FILE} holds every rung's every metric, verdicts.csv the verdicts; the figure shows the "
                f"headline metrics and the older ones per rung.\n\n![ladder]({figure.name})")
     with atomic_write(folder / "README.md", "w") as fh:
         fh.write(calibration_markdown(table, verdict, header=header, headline=HEADLINE_FIDELITY))
-    return verdict, [folder / "ladder.csv", folder / "verdicts.csv", figure, folder / "README.md"]
+    return verdict, [folder / LADDER_FILE, folder / "verdicts.csv", figure, folder / "README.md"]

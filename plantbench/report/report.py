@@ -246,15 +246,18 @@ def _tables(table) -> list[tuple[str, str, object]]:
 
 
 def calibration_note(calibration: Path | None) -> str:
-    """One sentence on what S_T measures, with the calibration's numbers (reports/calibration/ladder.csv), or ''."""
+    """One sentence on what S_T measures, with the calibration's numbers (reports/calibration's ladder table), or
+    ''."""
     import pandas as pd
 
-    path = (calibration or Path()) / "ladder.csv"
+    from plantbench.report.calibration import LADDER_FILE
+
+    path = (calibration or Path()) / LADDER_FILE
     if calibration is None or not path.is_file():
         return ""
     t = pd.read_csv(path)
-    st = t[(t["metric"] == "stava.S_T") & (t["status"] == "ok")]
-    mean = st.assign(rung=st["method"].str.replace("ladder:", "", regex=False)).groupby("rung")["value"].mean()
+    st = t[t["metric"] == "stava.S_T"]
+    mean = st.groupby("rung")["value"].mean()
     if not {"prior-a", "prior-b", "orders<=2", "jitter-0.5%"} <= set(mean.index):
         return ""
     return (f"S_T (Stava et al.) measures how species-like a tree is, not whether it is this tree: on the calibration "

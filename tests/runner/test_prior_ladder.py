@@ -143,3 +143,19 @@ def test_verdict_on_hand_made_ladders():
     missing = dict(good)
     del missing["prior-b"]
     assert not plant_checks(missing, True)["orders<=2>prior"]  # a missing value fails
+
+
+def test_calibration_files_and_the_reports_note(tmp_path):
+    from plantbench.report.calibration import LADDER_FILE, write_calibration
+    from plantbench.report.report import calibration_note
+
+    good = {"gt": 1.0, "orders<=3": 0.9, "orders<=2": 0.72, "orders<=1": 0.4, "prior-a": 0.76, "prior-b": 0.78,
+            "jitter-0.25%": 0.6, "jitter-0.5%": 0.57, "jitter-1%": 0.55, "jitter-2%": 0.5}
+    t = _ladder_table({f"p{i}": good for i in range(3)}, "stava.S_T").assign(species="s", family="f")
+    verdict, files = write_calibration(t, tmp_path)
+    assert (tmp_path / LADDER_FILE).is_file() and all(f.is_file() for f in files)
+    assert verdict.set_index("metric").loc["stava.S_T", "verdict"] == "does not discriminate"
+    back = pd.read_csv(tmp_path / LADDER_FILE)
+    assert len(back) == len(t) and set(back["rung"]) == set(good)
+    note = calibration_note(tmp_path)
+    assert "0.77" in note and "0.72" in note and "0.57" in note

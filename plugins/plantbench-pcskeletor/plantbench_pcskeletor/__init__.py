@@ -43,7 +43,8 @@ import numpy as np
 
 from plantbench.errors import InputError
 from plantbench.methods.api import MethodFailed
-from plantbench.plant import Skeleton, check_shape
+from plantbench.methods.inputs import check_cloud, read_input_points
+from plantbench.plant import Skeleton
 
 __all__ = [
     "PCSkeletor",
@@ -112,28 +113,16 @@ def params_from_options(options: dict) -> LBCParams:
 
 
 def load_points(capture_dir: str | Path) -> np.ndarray:
-    """(n, 3) float64 coordinates of ``capture_dir/points.ply``; InputError when missing, non-finite, fewer than
-    :data:`MIN_POINTS` or all coincident."""
-    from plantbench.io.ply import read_points
+    """(n, 3) float64 coordinates of ``capture_dir/points.ply``; InputError naming the file when missing,
+    non-finite, fewer than :data:`MIN_POINTS` or all coincident."""
+    return read_input_points(capture_dir, min_points=MIN_POINTS, method="pcskeletor", why=_WHY)
 
-    path = Path(capture_dir) / "points.ply"
-    if not path.is_file():
-        raise InputError("no points.ply (pcskeletor is a points method: it reads the scan or the mvs cloud)", path=path)
-    pts, _ = read_points(path)
-    try:
-        return _check_points(pts)
-    except InputError as exc:
-        raise InputError(str(exc), path=path) from None
+
+_WHY = "pc-skeletor's Laplacian uses 30 neighbours per point"
 
 
 def _check_points(points: np.ndarray) -> np.ndarray:
-    pts = check_shape("points", points, (-1, 3), "f")
-    if len(pts) < MIN_POINTS:
-        raise InputError(f"{len(pts)} points; pcskeletor needs at least {MIN_POINTS} (pc-skeletor's Laplacian uses "
-                         "30 neighbours per point)")
-    if np.ptp(pts, axis=0).max() <= 0:
-        raise InputError("all points coincide")
-    return pts
+    return check_cloud(points, min_points=MIN_POINTS, method="pcskeletor", why=_WHY)
 
 
 def _import_tool():
