@@ -3,7 +3,8 @@
 It is the floor beside every method (DESIGN.md section 7): a method earns its row by beating it. It grows the hinted
 species from the species library (``scenes/species``, the generative model itself: an oracle of the model, marked
 as such in every table, though it reads no ground truth of the case) with the method seed, scales it to the
-height of the input cloud (its vertical extent above the ground plane z = 0, :func:`cloud_height`) and writes
+height of the input cloud (its vertical extent above the ground plane z = 0,
+:func:`plantbench.geometry.clouds.cloud_height`) and writes
 skeleton, mesh and leaves with the root at the origin. Without a species hint it refuses to run.
 """
 
@@ -11,26 +12,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from plantbench.errors import InputError
+from plantbench.geometry.clouds import cloud_height
 from plantbench.plant import Plant, TriMesh
 
-__all__ = ["SpeciesPrior", "grow_prior", "cloud_height", "HEIGHT_QUANTILE"]
-
-HEIGHT_QUANTILE = 0.999
-"""The input's height is this quantile of its points' z (above z = 0): a few stray points above the crown (mvs
-outliers, a bird in a scan) do not set it."""
-
-
-def cloud_height(points: np.ndarray) -> float:
-    """Height of a cloud (n, 3) above the ground plane z = 0: the :data:`HEIGHT_QUANTILE` quantile of z."""
-    from plantbench.plant import check_shape
-
-    pts = check_shape("points", points, (-1, 3), "f")
-    if not len(pts):
-        raise InputError("the input cloud is empty: no height to scale the prior to")
-    return float(np.quantile(pts[:, 2], HEIGHT_QUANTILE))
+__all__ = ["SpeciesPrior", "grow_prior", "cloud_height"]
 
 
 def grow_prior(species: str, seed: int, height: float) -> Plant:

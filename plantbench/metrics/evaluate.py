@@ -145,10 +145,11 @@ def _support_metrics(values: dict, reasons: dict, skeleton, observed: np.ndarray
                      options: EvaluateOptions) -> None:
     """``support.*``: the GT-free share of the skeleton's length near an observed point (the scan, or the input
     cloud), tolerances fractions of the observed height above z = 0."""
+    from plantbench.geometry.clouds import cloud_height
     from plantbench.metrics.points import tau_label
     from plantbench.metrics.skeleton import HEIGHT_FRACTIONS, skeleton_support
 
-    obs_height = float(np.quantile(observed[:, 2], 0.999)) if observed is not None and len(observed) else 0.0
+    obs_height = cloud_height(observed) if observed is not None and len(observed) else 0.0
     if skeleton is None or observed is None or obs_height <= 0:
         _set(values, reasons, "support", None, "no skeleton.ply in the output" if skeleton is None
              else "no scan/scan.ply or observed cloud above the ground")
