@@ -18,8 +18,11 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 
-$(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install -q -e '.[test,cluster]'
+# The third-party method plugin (plugins/plantbench-pcskeletor) is part of the setup: the scan suite lists it. Its
+# tool, pc-skeletor, is installed without its declared dependencies (they would replace open3d-cpu; see its README).
+$(STAMP): pyproject.toml plugins/plantbench-pcskeletor/pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install -q -e '.[test,cluster,thirdparty]'
+	$(BIN)/python -m pip install -q --no-deps pc-skeletor==1.0.0
 	@touch $(STAMP)
 
 run: setup
@@ -27,7 +30,7 @@ run: setup
 
 # The tests, then the quick suite end to end, gated against the committed baseline (CI runs this).
 test: setup
-	$(BIN)/python -m pytest -q tests
+	$(BIN)/python -m pytest -q tests plugins/plantbench-pcskeletor/tests
 	$(BIN)/plantbench run --suite quick --out runs --workers 2
 	$(BIN)/plantbench gate runs/quick --baseline reports/baseline.json
 

@@ -82,6 +82,17 @@ class CaptureSettings(Strict):
     elevation: tuple[float, float] = Field(default=(5.0, 45.0), description="degrees above the horizon, low and high")
     scan: bool = Field(default=True, description="also simulate a terrestrial laser scan")
     stations: int = Field(default=1, ge=1, le=16, description="scanner stations on a circle")
+    scan_spacing: float | None = Field(
+        default=None, gt=0.0, le=1.0,
+        description="scanner beam spacing at the plant's axis, metres: sets the angular step to spacing / station "
+                    "distance (None: the scanner's angular_step_deg, 0.05 deg)")
+    registration_error: float = Field(
+        default=0.0, ge=0.0, le=1.0,
+        description="RMS displacement, metres, of each station's points after the first by a random rigid "
+                    "misregistration (half of the variance a rotation about the plant's centre, half a translation)")
+    range_noise_per_m: float = Field(
+        default=0.0, ge=0.0, le=0.1,
+        description="range noise sigma growing with range: sigma(r) = range_noise + range_noise_per_m * r")
     image_noise: int = Field(default=0, ge=0, le=16,
                              description="grey levels of uniform integer noise added to each image channel (0: none; "
                                          "the variability study uses 1)")
@@ -97,10 +108,27 @@ class CaptureSettings(Strict):
 
 class Sweep(Strict):
     """Repeat the suite over values of one setting: ``parameter`` is a dotted path into the suite, e.g.
-    ``"capture.views"`` or ``"method_options.mvs.noise"``."""
+    ``"capture.views"`` or ``"method_options.mvs.noise"``. ``linked`` settings follow it, one value per sweep value
+    (e.g. a scanner's registration error growing with its beam spacing); the swept value names the level."""
 
     parameter: str
     values: list[float | int | str] = Field(min_length=1)
+    linked: dict[str, list[float | int | str]] = Field(
+        default_factory=dict, description="dotted setting -> its value at each sweep value (same length as values)")
+
+    @model_validator(mode="after")
+    def _linked_lengths(self):
+        for name, vals in self.linked.items():
+            if len(vals) != len(self.values):
+                raise ValueError(f"sweep.linked {name!r} has {len(vals)} values for {len(self.values)} sweep values")
+            if name == self.parameter:
+                raise ValueError(f"sweep.linked {name!r} is the swept parameter itself")
+        return self
+
+    def levels(self) -> list[tuple[Any, dict[str, Any]]]:
+        """(sweep value, {dotted setting: value}) per level, the swept parameter first."""
+        return [(v, {self.parameter: v, **{k: vals[i] for k, vals in self.linked.items()}})
+                for i, v in enumerate(self.values)]
 
 
 class Suite(Strict):
@@ -120,21 +148,25 @@ class Suite(Strict):
     sweep: Sweep | None = None
 
 
-def apply_override(suite: Suite, parameter: str, value: Any) -> Suite:
-    """A copy of ``suite`` with the dotted ``parameter`` set to ``value`` (validated again)."""
+def apply_override(suite: Suite, parameter: str | dict[str, Any], value: Any = None) -> Suite:
+    """A copy of ``suite`` with the dotted ``parameter`` set to ``value`` (validated again); ``parameter`` may
+    instead be a {dotted setting: value} mapping, all set at once (a sweep level with linked settings)."""
+    settings = parameter if isinstance(parameter, dict) else {parameter: value}
     data = suite.model_dump(mode="python")
-    node = data
-    *path, last = parameter.split(".")
-    for key in path:
-        node = node.setdefault(key, {})
-        if not isinstance(node, dict):
-            raise InputError(f"sweep parameter {parameter!r}: {key!r} is not a table")
-    node[last] = value
+    for name, val in settings.items():
+        node = data
+        *path, last = name.split(".")
+        for key in path:
+            node = node.setdefault(key, {})
+            if not isinstance(node, dict):
+                raise InputError(f"sweep parameter {name!r}: {key!r} is not a table")
+        node[last] = val
     data["sweep"] = None
     try:
         return Suite.model_validate(data)
     except ValidationError as exc:
-        raise InputError(f"sweep value {value!r} for {parameter}: {validation_message(exc)}") from None
+        what = ", ".join(f"{k} = {v!r}" for k, v in settings.items())
+        raise InputError(f"sweep level {what}: {validation_message(exc)}") from None
 
 
 def _discover(reg: Registry) -> None:

@@ -47,3 +47,27 @@ def test_suite_malformed_toml(tmp_path):
 def test_suite_model_forbids_extra():
     with pytest.raises(ValidationError, match="extra"):
         Suite(name="x", description="y", cases=[{"species": "a", "seeds": [1]}], methods=["gt"], extra=1)
+
+
+def test_sweep_with_linked_settings():
+    """A sweep level sets the swept value and each linked setting's value at the same position."""
+    from plantbench.runner.plan import make_plan
+    from plantbench.suites import apply_override
+
+    suite = load_suite("scan")
+    levels = suite.sweep.levels()
+    assert [v for v, _ in levels] == [0.005, 0.01, 0.02, 0.05]
+    s = apply_override(suite, levels[3][1])
+    assert (s.capture.scan_spacing, s.capture.registration_error, s.capture.range_noise_per_m) == (0.05, 0.02, 0.002)
+    plan = make_plan(suite, ["gt"])
+    captures = [j for j in plan.jobs.values() if j.kind == "capture"]
+    assert len(captures) == 4 * sum(c.count for c in suite.cases)
+    assert {(j.params["settings"]["scan_spacing"], j.params["settings"]["registration_error"]) for j in captures} \
+        == {(0.005, 0.002), (0.01, 0.005), (0.02, 0.01), (0.05, 0.02)}
+    data = suite.model_dump(mode="python")
+    data["sweep"]["linked"]["capture.registration_error"] = [0.1]
+    with pytest.raises(ValidationError, match="1 values for 4 sweep values"):
+        Suite.model_validate(data)
+    data["sweep"]["linked"] = {"capture.stations": [1, 2, 3, 99]}
+    with pytest.raises(InputError, match="stations"):
+        make_plan(Suite.model_validate(data), ["gt"])

@@ -24,7 +24,7 @@ import numpy as np
 from plantbench.cameras import Camera, write_cameras
 from plantbench.capture.formats import Tracks, visible_tracks, write_colmap_text, write_transforms
 from plantbench.capture.raycast import RayCaster
-from plantbench.capture.scan import scan_plant
+from plantbench.capture.scan import median_spacing, scan_plant
 from plantbench.capture.settings import CaptureOptions, as_options
 from plantbench.capture.views import (
     exact_maps,
@@ -192,15 +192,27 @@ def _swap_in(case: Path, tmp_views: Path, tmp_scan: Path | None) -> None:
 
 
 def _write_scan(folder: Path, plant: Plant, options: CaptureOptions, seed: int, caster: RayCaster) -> dict:
-    scan = scan_plant(plant, options, rng(seed, "capture", "scan"), caster)
+    scan = scan_plant(plant, options, rng(seed, "capture", "scan"), caster,
+                      registration_rng=rng(seed, "capture", "scan", "registration"))
     write_points(folder / "scan.ply", scan.points,
                  {"label": scan.label, "leaf_id": scan.leaf_id, "station": scan.station})
+    stations = [{k: v for k, v in st.items() if k != "misregistration"} for st in scan.stations]
+    truth = {st["id"]: st["misregistration"] for st in scan.stations if "misregistration" in st}
+    if truth:  # ground truth: not copied into a method's input (plantbench.methods.inputs copies scan.ply and
+        # stations.json only)
+        write_json(folder / "registration.json", {"format": "plantbench.registration/1", "stations": truth,
+                                                  "registration_error": options.registration_error})
     doc = {
         "format": "plantbench.scan/1",
-        "stations": scan.stations,
-        "angular_step_deg": options.angular_step_deg,
+        "stations": stations,
+        "angular_step_deg": options.angular_step_deg if options.scan_spacing is None
+        else scan.stations[0]["angular_step_deg"],
+        "scan_spacing": options.scan_spacing,
+        "median_spacing": median_spacing(scan.points),
+        "registration_error": options.registration_error,
         "max_range": options.max_range,
         "range_noise": options.range_noise,
+        "range_noise_per_m": options.range_noise_per_m,
         "dropout": options.dropout,
         "scanner_height": options.scanner_height,
         "labels": {"0": "wood", "1": "leaf"},
@@ -208,7 +220,7 @@ def _write_scan(folder: Path, plant: Plant, options: CaptureOptions, seed: int, 
         "points": len(scan.points),
     }
     write_json(folder / "stations.json", doc)
-    return {"points": len(scan.points), "stations": len(scan.stations)}
+    return {"points": len(scan.points), "stations": len(scan.stations), "median_spacing": doc["median_spacing"]}
 
 
 def _write_views(folder: Path, plant: Plant, cameras: list[Camera], scene, gt, caster: RayCaster,

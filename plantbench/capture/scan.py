@@ -4,10 +4,15 @@ Each station is a scanner on a circle around the plant's axis at ``scanner_heigh
 beams, ``angular_step_deg`` apart in azimuth and elevation, over the angular window that the plant occupies seen
 from the station (plus two steps of margin; a real scanner sweeps the full sphere, but beams that cannot reach the
 plant return nothing here because the ground is not scanned). Each beam is cast against the plant's branch and leaf
-meshes, so occlusion is real; the first hit within ``max_range`` returns, its range gets Gaussian noise of sigma
-``range_noise``, and the return is lost with probability ``dropout``. Every point keeps its ground-truth label
-(0 wood, 1 leaf), leaf id (-1 for wood) and station index. Xu et al. 2007 reconstruct from a single scan, the
-default here.
+meshes, so occlusion is real; the first hit within ``max_range`` returns, its range r gets Gaussian noise of sigma
+``range_noise + range_noise_per_m * r``, and the return is lost with probability ``dropout``. Every point keeps its
+ground-truth label (0 wood, 1 leaf), leaf id (-1 for wood) and station index. Xu et al. 2007 reconstruct from a
+single scan, the default here.
+
+Field scans are sparser and rougher than the default scanner: ``scan_spacing`` sets the angular step from the
+beam spacing wanted at the plant (spacing / station distance, so the density comes from the scanner's geometry, not
+from thinning a dense cloud), and ``registration_error`` misregisters every station after the first by a random
+rigid transform, as the registration of real multi-station scans leaves them.
 """
 
 from __future__ import annotations
@@ -22,7 +27,8 @@ from plantbench.capture.settings import CaptureOptions
 from plantbench.errors import InputError
 from plantbench.plant import Plant
 
-__all__ = ["MAX_RAYS", "Scan", "station_positions", "beam_grid", "scan_plant"]
+__all__ = ["MAX_RAYS", "Scan", "station_positions", "station_distance", "angular_step", "beam_grid",
+           "misregistration", "median_spacing", "scan_plant"]
 
 MAX_RAYS = 30_000_000
 """Refuse stations with more beams than this (~1 GB of beam directions): the angular step is too fine for the
@@ -34,7 +40,9 @@ class Scan:
     """A labelled scan.
 
     points : (n, 3) float; label : (n,) uint8, 0 wood 1 leaf; leaf_id : (n,) int32, -1 for wood;
-    station : (n,) uint8; stations : per-station records (position, heading, angular window, beam and return counts)
+    station : (n,) uint8; stations : per-station records (position, heading, angular window, angular step, beam and
+    return counts; for a misregistered station also ``misregistration``: rotation, offset, RMS displacement of its
+    points and true position, which is ground truth)
     """
 
     points: np.ndarray
@@ -44,13 +52,26 @@ class Scan:
     stations: list[dict]
 
 
+def station_distance(plant: Plant, options: CaptureOptions) -> float:
+    """Radius of the station circle, metres: ``scan_distance``, or 1.5 x max(height, crown width), at least 1 m."""
+    if options.scan_distance is not None:
+        return float(options.scan_distance)
+    lo, hi = plant_bounds(plant)
+    return max(1.5 * max(float(hi[2]), float(np.max(hi[:2] - lo[:2]))), 1.0)
+
+
+def angular_step(plant: Plant, options: CaptureOptions) -> float:
+    """The scanner's angular step, radians: ``scan_spacing`` / station distance, or ``angular_step_deg``."""
+    if options.scan_spacing is not None:
+        return float(options.scan_spacing) / station_distance(plant, options)
+    return float(np.radians(options.angular_step_deg))
+
+
 def station_positions(plant: Plant, options: CaptureOptions) -> np.ndarray:
     """(k, 3) scanner positions on a circle around the plant's bounding-box axis at ``scanner_height``."""
     lo, hi = plant_bounds(plant)
     centre = 0.5 * (lo + hi)
-    radius = options.scan_distance
-    if radius is None:
-        radius = max(1.5 * max(float(hi[2]), float(np.max(hi[:2] - lo[:2]))), 1.0)
+    radius = station_distance(plant, options)
     az = np.radians(options.station_azimuth_deg) + 2 * np.pi * np.arange(options.stations) / options.stations
     return np.stack([centre[0] + radius * np.cos(az), centre[1] + radius * np.sin(az),
                      np.full(len(az), options.scanner_height)], axis=1)
@@ -81,13 +102,13 @@ def beam_grid(plant: Plant, position: np.ndarray, options: CaptureOptions) -> tu
     centre = 0.5 * (lo + hi)
     pos = np.asarray(position, float)
     verts = np.concatenate([plant.branch_mesh.vertices, plant.leaf_mesh.vertices])
-    step = np.radians(options.angular_step_deg)
+    step = angular_step(plant, options)
     heading = float(np.arctan2(centre[1] - pos[1], centre[0] - pos[0]))
     a0, a1, e0, e1 = _window(verts - pos, heading, step)
     n_rays = (a1 - a0 + 1) * (e1 - e0 + 1)
     if n_rays > MAX_RAYS:
-        raise InputError(f"scan: {n_rays} beams per station at angular step {options.angular_step_deg} deg "
-                         f"(limit {MAX_RAYS}); use a larger angular_step_deg")
+        raise InputError(f"scan: {n_rays} beams per station at angular step {np.degrees(step):.4g} deg "
+                         f"(limit {MAX_RAYS}); use a larger angular_step_deg or scan_spacing")
     az = heading + step * np.arange(a0, a1 + 1)
     el = step * np.arange(e0, e1 + 1)
     ce, se = np.cos(el)[:, None], np.sin(el)[:, None]
@@ -97,14 +118,46 @@ def beam_grid(plant: Plant, position: np.ndarray, options: CaptureOptions) -> tu
         "position": pos.tolist(), "heading_deg": float(np.degrees(heading)),
         "azimuth_range_deg": [float(np.degrees(az[0])), float(np.degrees(az[-1]))],
         "elevation_range_deg": [float(np.degrees(el[0])), float(np.degrees(el[-1]))],
+        "angular_step_deg": float(np.degrees(step)),
         "beams": int(n_rays),
     }
     return dirs, record
 
 
+def misregistration(plant: Plant, rms: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A random rigid transform x -> R (x - c) + c + t whose displacement of the plant's mesh vertices has an RMS of
+    about ``rms`` metres: half of the variance from a rotation about a random axis through the plant's bounding-box
+    centre c, half from a translation t. Returns (R (3, 3), offset (3,)) with x -> x @ R.T + offset."""
+    lo, hi = plant_bounds(plant)
+    centre = 0.5 * (lo + hi)
+    verts = np.concatenate([plant.branch_mesh.vertices, plant.leaf_mesh.vertices])
+    # a rotation by a small angle a about a random axis moves a point at distance rho from the axis by ~ a * rho;
+    # E[rho^2] over random axes is 2/3 of the mean squared distance from the centre
+    rho = np.sqrt(2.0 / 3.0 * np.mean(np.sum((verts - centre) ** 2, axis=1))) if len(verts) else 1.0
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    angle = rng.normal() * rms / np.sqrt(2.0) / max(rho, 1e-6)
+    t = rng.normal(size=3) * rms / np.sqrt(6.0)
+    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    rot = np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
+    return rot, centre - rot @ centre + t
+
+
+def median_spacing(points: np.ndarray) -> float:
+    """Median distance from each point to its nearest other point, metres (nan with fewer than 2 points)."""
+    from scipy.spatial import cKDTree
+
+    if len(points) < 2:
+        return float("nan")
+    d, _ = cKDTree(points).query(points, k=2)
+    return float(np.median(d[:, 1]))
+
+
 def scan_plant(plant: Plant, options: CaptureOptions, rng: np.random.Generator,
-               caster: RayCaster | None = None) -> Scan:
-    """Scan ``plant`` from ``options.stations`` stations; noise and dropout drawn from ``rng``.
+               caster: RayCaster | None = None, registration_rng: np.random.Generator | None = None) -> Scan:
+    """Scan ``plant`` from ``options.stations`` stations; noise and dropout drawn from ``rng``, the
+    misregistration of the stations after the first (``options.registration_error``) from ``registration_rng``
+    (default: a generator spawned from ``rng``).
 
     ``caster`` must index the branch faces, then the leaf faces (the default builds it); faces after those (e.g.
     the ground of :func:`plantbench.capture.views.ground_truth_caster`) stop a beam without a return.
@@ -120,10 +173,23 @@ def scan_plant(plant: Plant, options: CaptureOptions, rng: np.random.Generator,
         dirs, record = beam_grid(plant, pos, options)
         t, prim = caster.cast(pos, dirs, tmax=options.max_range)
         hit = np.flatnonzero((prim >= 0) & (prim < len(face_label)))
-        noise = rng.normal(0.0, options.range_noise, len(hit))  # drawn even when sigma = 0: same dropout stream
+        sigma = options.range_noise + options.range_noise_per_m * t[hit]
+        noise = rng.normal(0.0, sigma, len(hit))  # drawn even when sigma = 0: same dropout stream
         kept = rng.random(len(hit)) >= options.dropout
         hit, r = hit[kept], (t[hit] + noise)[kept]
-        out_p.append(pos + r[:, None] * dirs[hit])
+        points = pos + r[:, None] * dirs[hit]
+        if k > 0 and options.registration_error > 0:
+            if registration_rng is None:
+                registration_rng = rng.spawn(1)[0]
+            rot, offset = misregistration(plant, options.registration_error, registration_rng)
+            moved = points @ rot.T + offset
+            rms = float(np.sqrt(np.mean(np.sum((moved - points) ** 2, axis=1)))) if len(points) else 0.0
+            # the registered scan places the station where the misregistration moved it; the truth is ground truth
+            record["misregistration"] = {"rotation": rot.tolist(), "offset": offset.tolist(), "rms": rms,
+                                         "true_position": record["position"]}
+            record["position"] = (np.asarray(record["position"]) @ rot.T + offset).tolist()
+            points = moved
+        out_p.append(points)
         out_l.append(face_label[prim[hit]])
         out_id.append(face_leaf[prim[hit]])
         out_s.append(np.full(len(hit), k, np.uint8))

@@ -212,7 +212,17 @@ def _scored(table) -> set[str]:
     return set(ok["metric"]) or set(table["metric"])
 
 
-def _tables(table) -> list[tuple[str, str, object]]:
+def sweep_description(run_dir: Path) -> str | None:
+    """What a run's sweep varies (from run.json's suite config): 'capture.scan_spacing (with
+    capture.registration_error, ...)', or None."""
+    sweep = (read_run_meta(run_dir).get("config") or {}).get("sweep")
+    if not sweep:
+        return None
+    linked = list(sweep.get("linked") or {})
+    return sweep["parameter"] + (f" (with {', '.join(linked)})" if linked else "")
+
+
+def _tables(table, sweep: str | None = None) -> list[tuple[str, str, object]]:
     """(slug, caption, DataFrame) for every table of the report: the headline (metrics down the side), the paired
     comparisons, the paper's columns, then per species and per family on the headline metrics. A metric without a
     single value (every ground-truth metric of a run on real captures) is left out of all but the paper's table."""
@@ -240,8 +250,8 @@ def _tables(table) -> list[tuple[str, str, object]]:
         out.append(("family", "Per plant family and method, headline metrics",
                     wide_table(table, ("family", "method"), short or None, labels=labels)))
     if "sweep" in table.columns and table["sweep"].notna().any():
-        out.append(("sweep", "Per sweep value and method", wide_table(table, ("sweep", "method"), short or None,
-                                                                      labels=labels)))
+        out.append(("sweep", f"Per sweep value{f' of {sweep}' if sweep else ''} and method",
+                    wide_table(table, ("sweep", "method"), short or None, labels=labels)))
     return out
 
 
@@ -268,7 +278,7 @@ def calibration_note(calibration: Path | None) -> str:
             f"(reports/calibration).")
 
 
-def _figures(table, folder: Path) -> list[Path]:
+def _figures(table, folder: Path, sweep: str | None = None) -> list[Path]:
     """Bar chart per key metric (mean with 95 % CI per method), and sweep curves."""
     import matplotlib
 
@@ -313,7 +323,10 @@ def _figures(table, folder: Path) -> list[Path]:
                 ax.plot(g["sweep_value"], g["mean"], marker="o", label=method)
                 ax.fill_between(g["sweep_value"], g["lo"], g["hi"], alpha=0.2)
             ax.set_title(_unit_label(m), fontsize=9)
-            ax.set_xlabel("sweep value")
+            ax.set_xlabel((sweep or "sweep value").split(" (with")[0], fontsize=8)
+            values = sw["sweep_value"].unique()
+            if values.min() > 0 and values.max() >= 8 * values.min():  # a geometric progression reads on a log axis
+                ax.set_xscale("log")
         axes[0][0].legend(fontsize=7)
         fig.tight_layout()
         paths.append(folder / "sweep.png")
@@ -369,7 +382,8 @@ def write_report(run_dir: str | os.PathLike, formats: tuple[str, ...] = FORMATS,
     table = mark_oracles(read_results(run_dir), run_dir)
     out = Path(out) if out else run_dir / "report"
     out.mkdir(parents=True, exist_ok=True)
-    tables = _tables(table)
+    sweep = sweep_description(run_dir)
+    tables = _tables(table, sweep)
     origin = provenance(run_dir)
     if calibration is None:
         from plantbench.paths import project_root
@@ -378,7 +392,7 @@ def write_report(run_dir: str | os.PathLike, formats: tuple[str, ...] = FORMATS,
     note = calibration_note(Path(calibration))
     if note:
         origin = f"{origin}\n\n{note}" if origin else note
-    figures = _figures(table, out / "figures")
+    figures = _figures(table, out / "figures", sweep)
     distances = distance_figure(run_dir, out / "figures" / "distances.png")
     if distances is not None:
         figures.append(distances)

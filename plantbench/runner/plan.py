@@ -214,7 +214,7 @@ def make_plan(suite: Suite, methods: list[str] | None = None, *, dataset: tuple[
     resolved = {name: method_from_spec(name) for name in method_names}
     variants = [(None, suite)]
     if suite.sweep is not None:
-        variants = [(v, apply_override(suite, suite.sweep.parameter, v)) for v in suite.sweep.values]
+        variants = [(v, apply_override(suite, level)) for v, level in suite.sweep.levels()]
     plan = Plan(suite)
     version_code = {
         "plant": code_hash("plantbench/generate"),

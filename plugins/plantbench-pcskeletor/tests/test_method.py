@@ -176,3 +176,26 @@ def test_graph_to_skeleton_handles_cycles_components_and_nan():
     assert np.all((sk.radii >= MIN_RADIUS) & (sk.radii <= MAX_RADIUS))
     with pytest.raises(MethodFailed, match="empty skeleton"):
         graph_to_skeleton(pos[:2], np.zeros((0, 2), int), cloud)
+
+
+def test_auto_voxel_keeps_the_cloud_within_its_budget():
+    """down_sample = 'auto': none for a small cloud; otherwise the smallest 0.008 x 1.25^k voxel that Open3D's voxel
+    down-sampling brings within max_points (checked against Open3D itself, one step finer is over)."""
+    import open3d as o3d
+
+    from plantbench_pcskeletor import AUTO_VOXEL_START, LBCParams, params_from_options, voxel_size
+
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(0, 1.0, (20_000, 3)) * [1.0, 1.0, 0.05]
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    assert voxel_size(pcd, LBCParams(max_points=20_000)) == -1.0
+    v = voxel_size(pcd, LBCParams(max_points=5_000))
+    k = np.log(v / AUTO_VOXEL_START) / np.log(1.25)
+    assert np.isclose(k, round(k)) and v >= AUTO_VOXEL_START
+    assert len(pcd.voxel_down_sample(v).points) <= 5_000
+    if v > AUTO_VOXEL_START:
+        assert len(pcd.voxel_down_sample(v / 1.25).points) > 5_000
+    assert voxel_size(pcd, LBCParams(down_sample=0.02)) == 0.02
+    for bad in ({"down_sample": 0}, {"down_sample": "fine"}, {"max_points": 5}):
+        with pytest.raises(InputError):
+            params_from_options(bad)
