@@ -140,7 +140,7 @@ def capture_case(case_dir: str | os.PathLike, settings: Any = None, *, seed: int
         scan_summary = None
         if tmp_scan is not None:
             t0 = time.perf_counter()
-            scan_summary = _write_scan(tmp_scan, plant, options, seed, caster)
+            scan_summary = _write_scan(tmp_scan, plant, options, seed, caster, plant_json.species)
             timings["scan"] = time.perf_counter() - t0
         _write_views(tmp_views, plant, cameras, scene, gt, caster, options, seed, mi, timings)
         doc = {
@@ -191,9 +191,12 @@ def _swap_in(case: Path, tmp_views: Path, tmp_scan: Path | None) -> None:
     os.replace(tmp_views, case / "views")
 
 
-def _write_scan(folder: Path, plant: Plant, options: CaptureOptions, seed: int, caster: RayCaster) -> dict:
+def _write_scan(folder: Path, plant: Plant, options: CaptureOptions, seed: int, caster: RayCaster,
+                species: str) -> dict:
+    # the misregistration stream is the species' own, so that the plants of a suite (which share their seed) do not
+    # share one draw of station errors
     scan = scan_plant(plant, options, rng(seed, "capture", "scan"), caster,
-                      registration_rng=rng(seed, "capture", "scan", "registration"))
+                      registration_rng=rng(seed, "capture", "scan", "registration", species))
     write_points(folder / "scan.ply", scan.points,
                  {"label": scan.label, "leaf_id": scan.leaf_id, "station": scan.station})
     stations = [{k: v for k, v in st.items() if k != "misregistration"} for st in scan.stations]

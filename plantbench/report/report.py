@@ -315,19 +315,32 @@ def _figures(table, folder: Path, sweep: str | None = None) -> list[Path]:
         sw = table[table["sweep"].notna()].copy()
         sw["sweep_value"] = sw["sweep"].astype(float)
         sagg = aggregate(sw, ("method", "sweep_value"))
-        metrics = [m for m in KEY_METRICS if m in set(sagg["metric"])] or sorted(set(sagg["metric"]))[:4]
-        fig, axes = plt.subplots(1, len(metrics), figsize=(3.4 * len(metrics), 3.2), squeeze=False)
-        for ax, m in zip(axes[0], metrics):
+        finite = set(sagg.loc[np.isfinite(sagg["mean"]), "metric"])
+        metrics = [m for m in KEY_METRICS if m in finite] or sorted(finite)[:4]
+        values = sw["sweep_value"].unique()
+        geometric = values.min() > 0 and values.max() >= 8 * values.min()  # reads best on a log axis
+        ncol = min(5, max(len(metrics), 1))
+        nrow = max(-(-len(metrics) // ncol), 1)
+        fig, axes = plt.subplots(nrow, ncol, figsize=(3.4 * ncol, 3.2 * nrow), squeeze=False)
+        for ax in axes.ravel()[len(metrics):]:
+            ax.axis("off")
+        for ax, m in zip(axes.ravel(), metrics):
             for method, g in sagg[sagg["metric"] == m].groupby("method"):
                 g = g.sort_values("sweep_value")
                 ax.plot(g["sweep_value"], g["mean"], marker="o", label=method)
                 ax.fill_between(g["sweep_value"], g["lo"], g["hi"], alpha=0.2)
             ax.set_title(_unit_label(m), fontsize=9)
             ax.set_xlabel((sweep or "sweep value").split(" (with")[0], fontsize=8)
-            values = sw["sweep_value"].unique()
-            if values.min() > 0 and values.max() >= 8 * values.min():  # a geometric progression reads on a log axis
+            if geometric:
                 ax.set_xscale("log")
-        axes[0][0].legend(fontsize=7)
+                ax.minorticks_off()
+            ax.set_xticks(sorted(values), [f"{v:g}" for v in sorted(values)], fontsize=7)
+        spare = axes.ravel()[len(metrics):]
+        handles, names = axes[0][0].get_legend_handles_labels()
+        if len(spare):  # the legend in an empty panel, clear of the curves
+            spare[0].legend(handles, names, fontsize=8, loc="center")
+        else:
+            axes[0][0].legend(fontsize=7)
         fig.tight_layout()
         paths.append(folder / "sweep.png")
         fig.savefig(paths[-1], dpi=120)

@@ -110,7 +110,8 @@ def paired_differences(table, metrics: tuple[str, ...], pairs: list[tuple[str, s
                        level: float = 0.95, seed: int = 0):
     """Method a minus method b per metric, paired over the cases both scored: mean difference, percentile bootstrap
     interval of the mean (cases resampled), and a verdict in the metric's direction: 'a beats b' only when the
-    interval excludes 0 on the good side, 'a below b' when it excludes 0 on the bad side, else 'within noise'.
+    interval excludes 0 on the good side, 'a below b' when it excludes 0 on the bad side, else 'within noise'. A pair
+    with no case scored by both is left out.
 
     Returns a DataFrame: metric, a, b, n, diff, lo, hi, verdict.
     """
@@ -130,6 +131,8 @@ def paired_differences(table, metrics: tuple[str, ...], pairs: list[tuple[str, s
                 continue
             d = (w[a] - w[b]).to_numpy(float)
             d = d[np.isfinite(d)]
+            if d.size == 0:  # one of the two does not score this metric (e.g. a skeleton-only method's surface)
+                continue
             lo, hi = bootstrap_ci(d, n_boot=n_boot, level=level, seed=seed)
             verdict = "within noise"
             if d.size > 1 and higher is not None and np.isfinite(lo):

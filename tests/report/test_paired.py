@@ -44,6 +44,10 @@ def test_lower_is_better_and_missing_cases():
     d = paired_differences(t, ("mesh_to_surface.D_cm",), [("a", "b")])
     assert d["n"].iloc[0] == 3 and d["diff"].iloc[0] == pytest.approx(-1.1)
     assert d["verdict"].iloc[0] == "a beats b"  # lower distance is better
+    # a method that does not score the metric at all (a skeleton-only method's surface) is no pair, not 'within noise'
+    t = pd.concat([t, _table({"c": {"mesh_to_surface.D_cm": [np.nan] * 4}})])
+    d = paired_differences(t, ("mesh_to_surface.D_cm",), [("a", "b"), ("a", "c"), ("c", "b")])
+    assert list(zip(d["a"], d["b"])) == [("a", "b")]
 
 
 def test_fixed_notation():
