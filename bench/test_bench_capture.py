@@ -1,16 +1,20 @@
-"""Capture speed beside the raw libraries doing the same work (issue 4), all in one run:
+"""Capture speed beside the raw libraries doing the same work (issue 4). Each benchmark times the raw library on the
+same scene itself (a fixture), prints the ratio and fails beyond a bound:
 
 - views: ``capture_case`` (scan off: placement, textures, scene, 20 path-traced 512x512 views at 16 spp, PNGs,
   exact maps, COLMAP model, transforms.json) vs a bare ``mi.load_dict`` + 20 x ``mi.render`` of the same scene dict
-  at the same settings. Target: ratio <= 1.5.
-- maps: the exact depth/instance maps of the 20 views alone, as a fraction of the bare render. Target: <= 10 %.
+  at the same settings. Issue target: ratio <= 1.5.
+- maps: the exact depth/instance maps of the 20 views alone, as a fraction of the bare render. Issue target: <= 10 %.
 - scan: ``scan_plant`` (beam grid, casting, noise, dropout, labels) in beams per second vs open3d's
-  ``RaycastingScene.cast_rays`` on the same mesh and the same beams. Target: >= 0.5x open3d's rays/s.
+  ``RaycastingScene.cast_rays`` on the same mesh and the same beams. Issue target: >= 0.5x open3d's rays/s.
 
-Run ``pytest bench/test_bench_capture.py --benchmark-only -s``; the last test prints the ratios.
+The bounds asserted are 2-3x the ratios measured and never tighter than the issue's targets: they catch a regression
+on a noisy shared 2-core machine, where the targets themselves are judged on a quiet one. Run ``pytest bench/test_bench_capture.py --benchmark-only -s``.
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 import pytest
@@ -20,7 +24,32 @@ from plantbench.io.plantio import read_plant
 
 VIEWS = CaptureOptions(views=20, width=512, height=512, spp=16, scan=False)
 SCAN = CaptureOptions(angular_step_deg=0.02)
-_results: dict[str, float] = {}
+
+MAX_VIEWS_RATIO = 2.5
+"""capture_case / bare Mitsuba render. Measured 1.09 on the shared 2-core machine (issue 4's target 1.5); about 2.3x
+the measurement, so that only a real regression (a second render pass, a slow PNG or map path) fails."""
+MAX_MAPS_FRACTION = 0.10
+"""Exact maps / bare Mitsuba render. Measured 0.034 (issue 4's target 0.10, which is about 3x the measurement)."""
+MIN_SCAN_SPEED = 0.25
+"""scan_plant beams/s / open3d cast_rays rays/s. Measured 0.62 (issue 4's target >= 0.5); 2.5x below the
+measurement."""
+
+
+def _seconds(fn, rounds: int = 1) -> float:
+    """Shortest wall time of ``rounds`` calls of ``fn``."""
+    best = np.inf
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def _against(benchmark, bare_s: float) -> tuple[float, float]:
+    """The benchmark's best time and its ratio to the raw library's ``bare_s`` (both kept in its extra info)."""
+    ours = benchmark.stats.stats.min
+    benchmark.extra_info.update(bare_s=bare_s, ratio=ours / bare_s)
+    return ours, ours / bare_s
 
 
 @pytest.fixture(scope="module")
@@ -55,28 +84,18 @@ def scene_parts(case):
     return mi, plant, cams, d
 
 
-def _keep(benchmark, key: str) -> None:
-    _results[key] = benchmark.stats.stats.min
-
-
-@pytest.mark.benchmark(group="capture-20-views-512-16spp")
-def test_bare_mitsuba_render(benchmark, scene_parts):
+@pytest.fixture(scope="module")
+def bare_render_s(scene_parts) -> float:
+    """Seconds of a bare ``mi.load_dict`` + one ``mi.render`` per view at the capture's settings (one round: ~3 min
+    on 2 shared cores)."""
     mi, _, cams, d = scene_parts
 
     def bare():
         scene = mi.load_dict(d)
-        return [np.asarray(mi.render(scene, sensor=i, spp=VIEWS.spp, seed=i)) for i in range(len(cams))]
+        imgs = [np.asarray(mi.render(scene, sensor=i, spp=VIEWS.spp, seed=i)) for i in range(len(cams))]
+        assert imgs[0].shape == (512, 512, 3)
 
-    imgs = benchmark.pedantic(bare, rounds=1, iterations=1)  # one round: ~3 min on 2 shared cores
-    assert imgs[0].shape == (512, 512, 3)
-    _keep(benchmark, "bare_render")
-
-
-@pytest.mark.benchmark(group="capture-20-views-512-16spp")
-def test_plantbench_capture_views(benchmark, case, scene_parts):
-    benchmark.pedantic(capture_case, args=(case, VIEWS), kwargs={"seed": 0}, rounds=1, iterations=1)
-    assert (case / "views" / "capture.json").is_file()
-    _keep(benchmark, "capture_views")
+    return _seconds(bare)
 
 
 @pytest.fixture(scope="module")
@@ -87,23 +106,6 @@ def loaded(scene_parts):
     mi, plant, _, d = scene_parts
     scene = mi.load_dict(d)
     return scene, ground_truth_caster(plant, scene=scene, scene_dict=d)
-
-
-@pytest.mark.benchmark(group="capture-20-views-512-16spp")
-def test_exact_maps(benchmark, scene_parts, loaded):
-    from plantbench.capture.views import exact_maps, ground_truth_caster, ground_truth_mesh
-
-    _, plant, cams, d = scene_parts
-    scene, _ = loaded
-
-    def maps():
-        gt = ground_truth_mesh(plant)
-        caster = ground_truth_caster(plant, scene=scene, scene_dict=d)
-        return [exact_maps(c, gt, caster) for c in cams]
-
-    out = benchmark.pedantic(maps, rounds=3, iterations=1, warmup_rounds=1)
-    assert out[0].depth.shape == (512, 512)
-    _keep(benchmark, "exact_maps")
 
 
 @pytest.fixture(scope="module")
@@ -119,45 +121,62 @@ def scan_rays(scene_parts):
     return pos, dirs, verts, faces
 
 
-@pytest.mark.benchmark(group="scan")
-def test_open3d_cast_rays(benchmark, scan_rays):
+@pytest.fixture(scope="module")
+def open3d_cast_s(scan_rays) -> float:
+    """Seconds of open3d's ``RaycastingScene.cast_rays`` on the plant mesh and the scan's beams (the scene built
+    beforehand; best of 3 after a warm-up)."""
     import open3d as o3d
 
     pos, dirs, verts, faces = scan_rays
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(verts.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32)))
     rays = o3d.core.Tensor(np.concatenate([np.broadcast_to(pos, dirs.shape), dirs], 1).astype(np.float32))
-    ans = benchmark.pedantic(scene.cast_rays, args=(rays,), rounds=3, iterations=1, warmup_rounds=1)
-    assert np.isfinite(ans["t_hit"].numpy()).any()
-    _results["open3d_rays_per_s"] = len(dirs) / benchmark.stats.stats.min
+    assert np.isfinite(scene.cast_rays(rays)["t_hit"].numpy()).any()
+    return _seconds(lambda: scene.cast_rays(rays), rounds=3)
+
+
+@pytest.mark.benchmark(group="capture-20-views-512-16spp")
+def test_capture_views_vs_bare_mitsuba(benchmark, case, bare_render_s):
+    benchmark.pedantic(capture_case, args=(case, VIEWS), kwargs={"seed": 0}, rounds=1, iterations=1)
+    assert (case / "views" / "capture.json").is_file()
+    ours, ratio = _against(benchmark, bare_render_s)
+    print(f"\nviews: capture_case / bare mi.render = {ratio:.2f} ({ours:.1f} s vs {bare_render_s:.1f} s; "
+          f"bound {MAX_VIEWS_RATIO}, issue target 1.5)")
+    assert ratio <= MAX_VIEWS_RATIO
+
+
+@pytest.mark.benchmark(group="capture-20-views-512-16spp")
+def test_exact_maps_vs_bare_mitsuba(benchmark, scene_parts, loaded, bare_render_s):
+    from plantbench.capture.views import exact_maps, ground_truth_caster, ground_truth_mesh
+
+    _, plant, cams, d = scene_parts
+    scene, _ = loaded
+
+    def maps():
+        gt = ground_truth_mesh(plant)
+        caster = ground_truth_caster(plant, scene=scene, scene_dict=d)
+        return [exact_maps(c, gt, caster) for c in cams]
+
+    out = benchmark.pedantic(maps, rounds=3, iterations=1, warmup_rounds=1)
+    assert out[0].depth.shape == (512, 512)
+    ours, fraction = _against(benchmark, bare_render_s)
+    print(f"\nmaps: exact maps / bare mi.render = {100 * fraction:.1f} % ({ours:.2f} s vs {bare_render_s:.1f} s; "
+          f"bound {100 * MAX_MAPS_FRACTION:.0f} %, issue target 10 %)")
+    assert fraction <= MAX_MAPS_FRACTION
 
 
 @pytest.mark.benchmark(group="scan")
-def test_plantbench_scan(benchmark, scene_parts, loaded, scan_rays):
+def test_scan_vs_open3d_cast_rays(benchmark, scene_parts, loaded, scan_rays, open3d_cast_s):
     from plantbench.capture.scan import scan_plant
 
     _, plant, _, _ = scene_parts
     _, caster = loaded  # capture_case scans with the render scene's BVH, as open3d's scene here is prebuilt too
     scan = benchmark.pedantic(scan_plant, args=(plant, SCAN, np.random.default_rng(0), caster), rounds=3,
                               iterations=1, warmup_rounds=1)
-    assert scan.stations[0]["beams"] == len(scan_rays[1])
-    _results["scan_rays_per_s"] = scan.stations[0]["beams"] / benchmark.stats.stats.min
-
-
-def test_report_ratios(benchmark, scan_rays):
-    """Print the ratios of the issue's speed targets (no assertion on wall time; uses ``benchmark`` only so that
-    --benchmark-only runs it)."""
-    benchmark.pedantic(lambda: None, rounds=1, iterations=1)
-    r = _results
-    lines = []
-    if {"capture_views", "bare_render"} <= r.keys():
-        lines.append(f"views: capture_case / bare mi.render = {r['capture_views'] / r['bare_render']:.2f} "
-                     f"(target <= 1.5; {r['capture_views']:.2f} s vs {r['bare_render']:.2f} s)")
-    if {"exact_maps", "bare_render"} <= r.keys():
-        lines.append(f"maps: exact maps / bare mi.render = {100 * r['exact_maps'] / r['bare_render']:.1f} % "
-                     f"(target <= 10 %; {r['exact_maps']:.3f} s)")
-    if {"scan_rays_per_s", "open3d_rays_per_s"} <= r.keys():
-        lines.append(f"scan: {r['scan_rays_per_s'] / 1e6:.1f} M beams/s vs open3d {r['open3d_rays_per_s'] / 1e6:.1f} M "
-                     f"rays/s = {r['scan_rays_per_s'] / r['open3d_rays_per_s']:.2f}x (target >= 0.5; "
-                     f"{len(scan_rays[1])} beams)")
-    print("\n" + "\n".join(lines))
+    beams = scan.stations[0]["beams"]
+    assert beams == len(scan_rays[1])
+    ours, ratio = _against(benchmark, open3d_cast_s)
+    speed = 1.0 / ratio  # as many beams as rays
+    print(f"\nscan: {beams / ours / 1e6:.1f} M beams/s vs open3d {beams / open3d_cast_s / 1e6:.1f} M rays/s = "
+          f"{speed:.2f}x ({beams} beams; bound >= {MIN_SCAN_SPEED}, issue target >= 0.5)")
+    assert speed >= MIN_SCAN_SPEED

@@ -1,7 +1,9 @@
-"""Generator speed: a full-size Maple (about 1.7k branches, 9.6k leaves) through generate_case (growth, tubes,
-leaves, all files) and through growth alone, beside the raw scipy cKDTree marker query that dominates one growth
-cycle (the same markers against the grown plant's nodes, k = 8 within the perception radius). Target: generate_case
-<= 10 s on the 2-core development machine."""
+"""Generator speed, one full-size plant of each family through generate_case (growth, tubes, leaves, all files)
+and through growth in memory: a Maple (space colonisation, about 1.7k branches, 9.6k leaves) and a wp_conifer
+(Weber-Penn, about 2.2k branches, 11k leaves). Beside them, the raw scipy cKDTree marker query that dominates one
+space-colonisation growth cycle (the same markers against the grown plant's nodes, k = 8 within the perception
+radius); the Weber-Penn stages are in test_bench_weber_penn.py. Target (issue 11): generate_case <= 10 s on the
+2-core development machine."""
 
 import numpy as np
 import pytest
@@ -13,25 +15,29 @@ from plantbench.generate.space_colonisation import grow_skeleton
 from plantbench.seeding import rng as seeded_rng
 from plantbench.species import load_species
 
-SPECIES = "maple"
+FULL_SIZE = [  # species, then the fewest branches and leaves its full-size plant has
+    pytest.param("maple", 1200, 8000, marks=pytest.mark.benchmark(group="generate-maple"), id="maple"),
+    pytest.param("wp_conifer", 1800, 9000, marks=pytest.mark.benchmark(group="generate-weber-penn"),
+                 id="wp_conifer"),
+]
 
 
-@pytest.mark.benchmark(group="generate-maple")
-def test_generate_case_full_maple(benchmark, tmp_path):
-    meta = benchmark.pedantic(generate_case, args=(SPECIES, 0, tmp_path), rounds=2, iterations=1)
-    assert meta.counts.branches > 1200 and meta.counts.leaves > 8000
+@pytest.mark.parametrize(("species", "branches", "leaves"), FULL_SIZE)
+def test_generate_case_full(benchmark, tmp_path, species, branches, leaves):
+    meta = benchmark.pedantic(generate_case, args=(species, 0, tmp_path), rounds=2, iterations=1)
+    assert meta.counts.branches > branches and meta.counts.leaves > leaves
 
 
-@pytest.mark.benchmark(group="generate-maple")
-def test_grow_full_maple(benchmark):
-    plant, _ = benchmark.pedantic(grow_species, args=(SPECIES, 0), rounds=2, iterations=1)
-    assert len(plant.leaves) > 8000
+@pytest.mark.parametrize(("species", "branches", "leaves"), FULL_SIZE)
+def test_grow_full(benchmark, species, branches, leaves):
+    plant, _ = benchmark.pedantic(grow_species, args=(species, 0), rounds=2, iterations=1)
+    assert len(plant.leaves) > leaves
 
 
 @pytest.mark.benchmark(group="generate-maple")
 def test_raw_ckdtree_marker_query(benchmark):
-    spec = load_species(SPECIES)
-    result, _, markers = grow_skeleton(spec, seeded_rng(0, "generate", SPECIES))
+    spec = load_species("maple")
+    result, _, markers = grow_skeleton(spec, seeded_rng(0, "generate", "maple"))
     radius = spec.growth.perception_radius * spec.table1.internode_length
 
     def query():

@@ -3,11 +3,8 @@
 Acceptance (issue 10): the 2-worker cluster runs the quick suite >= 1.6x faster than 1 worker, with the same
 results table. Each variant runs once (a round is minutes long); compare the two means in one report.
 
-The ratio of one pair is noisy on a shared VM: eight pairs on the 2-core development machine (session 7) gave 1.49,
-1.55, 1.61, 1.63, 1.64, 1.70, 1.73 and 1.78x, the 1-worker run alone taking 217-286 s within an hour. In slow phases
-jobs side by side took up to 1.3x their time alone, in others 1.1x; the same 15 metric cells run as two concurrent
-streams took the CPU time of one stream alone (193 s), so it is the host, not the jobs. Judge it on several pairs,
-alternating which variant runs first.
+The ratio of one pair is noisy on a shared VM (the pairs measured so far: docs/tuning/runner.md): judge it on
+several pairs, alternating which variant runs first.
 """
 
 from __future__ import annotations

@@ -32,6 +32,14 @@ def _console():
     return Console()
 
 
+def _progress_bar(console):
+    """The progress bar of a long command: description, bar, done/total, elapsed time."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    console=console)
+
+
 def _emit(table) -> None:
     """Print a rich Table: boxed on a terminal; plain tab-separated columns (a header line, then one line per row)
     into a pipe or file, for grep and scripts."""
@@ -42,6 +50,13 @@ def _emit(table) -> None:
     typer.echo("\t".join(str(c.header) for c in cols))
     for i in range(table.row_count):
         typer.echo("\t".join(str(c._cells[i]) for c in cols))
+
+
+def _group(name: str, help: str) -> typer.Typer:
+    """A group of subcommands, ``plantbench NAME ...``."""
+    group = typer.Typer(help=help, no_args_is_help=True)
+    app.add_typer(group, name=name)
+    return group
 
 
 @app.callback()
@@ -87,6 +102,12 @@ def capture(
     elevation: Annotated[str, typer.Option(help="Camera elevation band LO,HI in degrees.")] = "5,45",
     scan: Annotated[bool, typer.Option("--scan/--no-scan", help="Also simulate a laser scan.")] = True,
     stations: Annotated[int, typer.Option(help="Laser scanner stations.")] = 1,
+    scan_spacing: Annotated[Optional[float], typer.Option(  # noqa: UP045
+        help="Scanner beam spacing at the plant, metres (sets the angular step) [default: 0.05 deg steps].")] = None,
+    registration_error: Annotated[float, typer.Option(
+        help="RMS misregistration of each station after the first, metres.")] = 0.0,
+    range_noise_per_m: Annotated[float, typer.Option(
+        help="Range noise growth: sigma = 2 mm + this x range.")] = 0.0,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
 ) -> None:
     """Render multi-view images with exact depth/instance maps and cameras, and simulate a laser scan."""
@@ -101,9 +122,17 @@ def capture(
     except ValueError:
         raise InputError(f"--elevation must look like 5,45, got {elevation!r}") from None
     options = as_options({"views": views, "width": w, "height": h, "spp": spp, "elevation": (lo, hi), "scan": scan,
-                          "stations": stations})
+                          "stations": stations, "scan_spacing": scan_spacing,
+                          "registration_error": registration_error, "range_noise_per_m": range_noise_per_m})
     folder = capture_case(case, options, seed=seed)
-    typer.echo(f"{folder}: {views} views at {w}x{h}, {spp} spp" + (f"; scan from {stations} station(s)" if scan else ""))
+    scanned = ""
+    if scan:
+        import json
+
+        doc = json.loads((Path(case) / "scan" / "stations.json").read_text())
+        scanned = (f"; scan from {stations} station(s), {doc['points']} points at a median spacing of "
+                   f"{100 * doc['median_spacing']:.2f} cm")
+    typer.echo(f"{folder}: {views} views at {w}x{h}, {spp} spp{scanned}")
 
 
 @app.command()
@@ -157,8 +186,6 @@ def run(
         help="A frozen dataset of the suite (`plantbench dataset pack`): run the methods on its captures.")] = None,
 ) -> None:
     """Run a suite: cases x methods, cached and resumable; writes the results table."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
     from plantbench.runner import run_suite
     from plantbench.suites import load_suite
 
@@ -170,8 +197,7 @@ def run(
 
         frozen = open_dataset(dataset, spec)
     console = _console()
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=console, transient=False) as bar:
+    with _progress_bar(console) as bar:
         task = bar.add_task(f"suite {spec.name}", total=None)
 
         def progress(done: int, total: int, rec: dict) -> None:
@@ -283,8 +309,6 @@ def calibrate(
     moved; the no-data prior; another species) with every metric, and say which metrics order them by fidelity."""
     import time
 
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
     from plantbench.metrics.info import HEADLINE_FIDELITY
     from plantbench.report.calibration import run_calibration, write_calibration
     from plantbench.report.gate import read_results, read_run_meta
@@ -298,8 +322,7 @@ def calibrate(
     else:
         spec = load_suite(suite)
         chosen = [s.strip() for s in species.split(",")] if species else None
-        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                      console=console) as bar:
+        with _progress_bar(console) as bar:
             task = bar.add_task("calibration", total=None)
 
             def progress(done: int, total: int, rec: dict) -> None:
@@ -336,8 +359,6 @@ def variability(
     image noise, thread count), then write the gate's baseline (the reference run) and its tolerances."""
     import time
 
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
     from plantbench.backend import host_cpu_name
     from plantbench.io.atomic import atomic_write
     from plantbench.report.gate import make_baseline, read_run_meta, write_baseline, write_tolerances
@@ -359,8 +380,7 @@ def variability(
         console.print(f"skipped {p.name}: this CPU lacks {p.requires}")
 
     t0 = time.perf_counter()
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=console) as bar:
+    with _progress_bar(console) as bar:
         runs = bar.add_task("study", total=len(chosen))
         jobs = bar.add_task("jobs", total=None)
 
@@ -395,9 +415,7 @@ def variability(
                   f"{reports}/baseline.json: {len(chosen)} runs in {time.perf_counter() - t0:.0f} s")
 
 
-dataset_app = typer.Typer(help="Frozen datasets: a suite's ground truth and captures with a sha256 manifest.",
-                          no_args_is_help=True)
-app.add_typer(dataset_app, name="dataset")
+dataset_app = _group("dataset", "Frozen datasets: a suite's ground truth and captures with a sha256 manifest.")
 
 
 @dataset_app.command("pack")
@@ -431,9 +449,8 @@ def dataset_verify(
                f"manifest sha256 {manifest_sha256(folder)}")
 
 
-import_app = typer.Typer(help="Real captures in: a scan file, or photos with a COLMAP model, become a case (no plant/).",
-                         no_args_is_help=True)
-app.add_typer(import_app, name="import")
+import_app = _group("import",
+                    "Real captures in: a scan file, or photos with a COLMAP model, become a case (no plant/).")
 
 
 @import_app.command("scan")
@@ -472,11 +489,19 @@ def import_views_cmd(
     typer.echo(f"{out}: {res.notes[-1]}")
 
 
-qsm_app = typer.Typer(help="QSM cylinder tables (TreeQSM / rTwig columns) to and from skeletons.",
-                      no_args_is_help=True)
-app.add_typer(qsm_app, name="qsm")
+qsm_app = _group("qsm", "QSM cylinder tables (TreeQSM / rTwig columns) to and from skeletons.")
 
 _CASE_HELP = "An imported case: the QSM is in the frame of the file imported into it (units, axes, georeference)."
+
+
+def _case_frame(skeleton, case: Path | None, to: str):
+    """``skeleton`` moved into the imported ``case``'s source frame (``to="source"``) or from it into the local one
+    (``to="local"``); unchanged without a case."""
+    if case is None:
+        return skeleton
+    from plantbench.capture.importers import read_case_json, skeleton_to_frame
+
+    return skeleton_to_frame(skeleton, read_case_json(case).frame, to=to)
 
 
 @qsm_app.command("export")
@@ -489,11 +514,7 @@ def qsm_export(
     from plantbench.io.ply import read_skeleton
     from plantbench.io.qsm import write_qsm_csv
 
-    skeleton = read_skeleton(recon / "skeleton.ply")
-    if case is not None:
-        from plantbench.capture.importers import read_case_json, skeleton_to_frame
-
-        skeleton = skeleton_to_frame(skeleton, read_case_json(case).frame, to="source")
+    skeleton = _case_frame(read_skeleton(recon / "skeleton.ply"), case, to="source")
     df = write_qsm_csv(out, skeleton)
     typer.echo(f"{out}: {len(df)} cylinders, {df['branch'].nunique()} branches")
 
@@ -508,11 +529,7 @@ def qsm_import(
     from plantbench.io.plantio import write_reconstruction
     from plantbench.io.qsm import read_qsm_csv
 
-    skeleton = read_qsm_csv(file)
-    if case is not None:
-        from plantbench.capture.importers import read_case_json, skeleton_to_frame
-
-        skeleton = skeleton_to_frame(skeleton, read_case_json(case).frame, to="local")
+    skeleton = _case_frame(read_qsm_csv(file), case, to="local")
     write_reconstruction(out, skeleton)
     typer.echo(f"{out / 'skeleton.ply'}: {len(skeleton)} nodes, {len(skeleton.roots)} root(s)")
 

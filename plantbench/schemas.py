@@ -6,12 +6,15 @@ Loading goes through :func:`load_json` / :func:`load_toml`, which turn a parse o
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import tomllib
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from plantbench.errors import InputError
@@ -28,9 +31,12 @@ __all__ = [
     "load_json",
     "load_toml",
     "validation_message",
+    "params_from_options",
+    "jsonable",
 ]
 
 M = TypeVar("M", bound=BaseModel)
+P = TypeVar("P")
 
 
 class Strict(BaseModel):
@@ -164,3 +170,42 @@ def read_toml(path: str | os.PathLike) -> dict[str, Any]:
 
 def load_toml(path: str | os.PathLike, model: type[M]) -> M:
     return _validate(model, read_toml(path), path)
+
+
+# ---------------------------------------------------------------------------------- method options and statistics
+
+
+def params_from_options(cls: type[P], options: Mapping[str, Any], *, method: str | None = None,
+                        also: Sequence[str] = ()) -> P:
+    """``cls(**options)`` for a method's frozen parameter dataclass, from a suite's ``[method_options.NAME]``.
+
+    Unknown names raise InputError listing the valid ones (the fields, then ``also``: the options the method reads
+    itself); a list becomes a tuple where the field's default is one (TOML has no tuples); a TypeError of ``cls``
+    becomes an InputError. ``method`` prefixes the messages (``"guo: unknown option(s) ..."``).
+    """
+    prefix = f"{method}: " if method else ""
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    bad = sorted(set(options) - set(fields))
+    if bad:
+        valid = ", ".join([*sorted(fields), *also])
+        raise InputError(f"{prefix}unknown option(s) {', '.join(bad)} (valid: {valid})")
+    values = {k: tuple(v) if isinstance(v, list) and isinstance(fields[k].default, tuple) else v
+              for k, v in options.items()}
+    try:
+        return cls(**values)
+    except TypeError as exc:
+        raise InputError(f"{prefix}{exc}") from None
+
+
+def jsonable(obj: Any, *, digits: int | None = None) -> Any:
+    """``obj`` as plain JSON values, recursively: dict keys become strings, tuples lists and numpy scalars Python
+    numbers; with ``digits``, Python floats (not numpy's) are rounded to that many decimals."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v, digits=digits) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [jsonable(v, digits=digits) for v in obj]
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if digits is not None and isinstance(obj, float):
+        return round(obj, digits)
+    return obj

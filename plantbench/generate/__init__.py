@@ -1,9 +1,11 @@
 """Ground truth: procedural Xfrog-like plants with exact skeletons, branch surfaces and Bezier leaves.
 
 :data:`FAMILIES` maps a species file's ``family`` to its parameter model and growth function. Geometry shared by
-every family lives in its own modules (:mod:`.tubes` generalised cylinders and radii, :mod:`.leaf` the Bezier
-leaf, :mod:`.foliage` leaf placement); :mod:`.space_colonisation` is the Palubicki et al. growth model,
-:mod:`.weber_penn` the Weber and Penn 1995 recursive stems (species files with ``family = "weber-penn"``).
+every family lives in :mod:`plantbench.geometry` (:mod:`~plantbench.geometry.tubes` generalised cylinders and
+radii, :mod:`~plantbench.geometry.leaf` the Bezier leaf) and in :mod:`.foliage` (leaf placement).
+:mod:`.space_colonisation` grows the species files with ``family = "space-colonisation"`` (markers in a crown
+envelope, Palubicki et al. 2009's growth in :mod:`.palubicki`), :mod:`.weber_penn` those with
+``family = "weber-penn"`` (Weber and Penn 1995 recursive stems).
 """
 
 from __future__ import annotations

@@ -34,6 +34,7 @@ __all__ = [
     "Wood",
     "LeafShape",
     "Leaves",
+    "SpeciesBase",
     "SpaceColonisationSpecies",
 ]
 
@@ -155,14 +156,22 @@ class Leaves(Strict):
                              description="mean Bezier leaf (Chaurasia and Beardsley 2017, 21 parameters)")
 
 
-class SpaceColonisationSpecies(Strict):
-    """A species of the ``space-colonisation`` family (one ``scenes/species/*.toml``)."""
+class SpeciesBase(Strict):
+    """What every species file (one ``scenes/species/*.toml``) says about itself, whatever its family; a family's
+    model adds its parameter groups and fixes ``family``."""
 
     name: str = Field(pattern=r"^[a-z][a-z0-9_]*$", description="the file stem")
-    family: Literal["space-colonisation"] = "space-colonisation"
+    family: str = Field(description="the generator family (plantbench.generate.FAMILIES)")
     display_name: str = Field(min_length=1)
     description: str = ""
-    habit: str = Field(default="", description="growth habit in words (upright, spreading, shrubby ...)")
+    habit: str = Field(default="", description="growth habit in words (upright, spreading, shrubby, excurrent, "
+                       "weeping, palm ...)")
+
+
+class SpaceColonisationSpecies(SpeciesBase):
+    """A species of the ``space-colonisation`` family (one ``scenes/species/*.toml``)."""
+
+    family: Literal["space-colonisation"] = "space-colonisation"
     reference: Reference | None = Field(default=None,
                                         description="row of Guo et al. 2018, Table 2, if the species has one")
     table1: Table1

@@ -20,7 +20,7 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from plantbench.generate.params import Leaves, Shape
+from plantbench.generate.params import Leaves, Shape, SpeciesBase
 from plantbench.schemas import Strict
 
 __all__ = ["Tree", "StemLevel", "Trunk", "BranchLevel", "WeberPennLeaves", "WeberPennWood", "WeberPennSpecies"]
@@ -114,14 +114,10 @@ class WeberPennWood(Strict):
                                     "height stops there (weeping branches end above the ground), metres")
 
 
-class WeberPennSpecies(Strict):
+class WeberPennSpecies(SpeciesBase):
     """A species of the ``weber-penn`` family (one ``scenes/species/*.toml``)."""
 
-    name: str = Field(pattern=r"^[a-z][a-z0-9_]*$", description="the file stem")
     family: Literal["weber-penn"] = "weber-penn"
-    display_name: str = Field(min_length=1)
-    description: str = ""
-    habit: str = Field(default="", description="growth habit in words (excurrent, weeping, palm ...)")
     tree: Tree
     trunk: Trunk = Field(default_factory=Trunk)
     level1: BranchLevel | None = Field(default=None, description="first branch level (W&P Levels >= 2)")

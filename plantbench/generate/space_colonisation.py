@@ -1,7 +1,8 @@
 """The ``space-colonisation`` family: a species TOML -> a :class:`~plantbench.plant.Plant`.
 
-Markers fill the species' crown envelope; stems grow from the ground by :mod:`.colonisation`; radii follow Eq. 5
-(:mod:`.tubes`); branches become generalised cylinders and leaves Bezier blades on petioles (:mod:`.foliage`).
+Markers fill the species' crown envelope (:mod:`.envelope`); stems grow from the ground by Palubicki et al.'s
+space colonisation (:mod:`.palubicki`); radii follow Eq. 5 (:mod:`plantbench.geometry.tubes`); branches become
+generalised cylinders and leaves Bezier blades on petioles (:mod:`.foliage`).
 ``scale`` in (0, 1] shrinks the envelope by scale^(1/3), which shrinks the growth budget (total branch length,
 number of internodes) roughly in proportion to ``scale``; internode length and leaf size are unchanged.
 """
@@ -11,12 +12,12 @@ from __future__ import annotations
 import numpy as np
 
 from plantbench.errors import InputError
-from plantbench.generate.colonisation import GrowthParams, grow_space_colonisation
 from plantbench.generate.envelope import envelope_volume, sample_markers
-from plantbench.generate.foliage import FoliageParams, place_leaves
+from plantbench.generate.foliage import foliage_params, place_leaves
+from plantbench.generate.palubicki import GrowthParams, grow_space_colonisation
 from plantbench.generate.params import SpaceColonisationSpecies
-from plantbench.geometry.leaf import BezierLeaf
-from plantbench.geometry.tubes import _levels, node_frames, supported_length_radii, tube_mesh
+from plantbench.geometry.tubes import node_frames, supported_length_radii, tube_mesh
+from plantbench.geometry.vectors import levels
 from plantbench.plant import Plant, Skeleton
 
 __all__ = ["grow", "grow_skeleton", "foliage_params"]
@@ -78,27 +79,6 @@ def grow_skeleton(spec: SpaceColonisationSpecies, rng: np.random.Generator, *, s
     return result, radii, markers
 
 
-def foliage_params(spec: SpaceColonisationSpecies) -> FoliageParams:
-    lv = spec.leaves
-    return FoliageParams(
-        shape=BezierLeaf(**lv.shape.model_dump()),
-        length=lv.length,
-        arrangement=lv.arrangement,
-        divergence=lv.divergence,
-        whorl_count=lv.whorl_count,
-        max_branch_radius=lv.max_branch_radius,
-        insertion_angle=lv.insertion_angle,
-        droop=lv.droop,
-        petiole_length=lv.petiole_length,
-        petiole_radius=lv.petiole_radius,
-        length_sd=lv.length_sd,
-        width_sd=lv.width_sd,
-        shape_jitter=lv.shape_jitter,
-        roll_sd=lv.roll_sd,
-        resolution=tuple(lv.resolution),
-    )
-
-
 def grow(spec: SpaceColonisationSpecies, rng: np.random.Generator, *, scale: float = 1.0) -> Plant:
     """Grow one plant of ``spec`` (all random draws from ``rng``)."""
     result, radii, _ = grow_skeleton(spec, rng, scale=scale)
@@ -109,7 +89,7 @@ def grow(spec: SpaceColonisationSpecies, rng: np.random.Generator, *, scale: flo
     branch_mesh = tube_mesh(pos, result.parents, radii, main, max_sides=spec.wood.max_sides,
                             min_sides=spec.wood.min_sides, edge_length=0.5 * spec.table1.internode_length)
     tangent, normal, _, _ = node_frames(pos, result.parents, main)
-    foliage = place_leaves(pos, result.parents, radii, main, tangent, normal, _levels(result.parents),
+    foliage = place_leaves(pos, result.parents, radii, main, tangent, normal, levels(result.parents),
                            foliage_params(spec), rng)
     meta = {
         "derived": {

@@ -36,10 +36,10 @@ import numpy as np
 
 from plantbench.errors import InputError
 from plantbench.generate.envelope import shape_ratio
-from plantbench.generate.foliage import place_leaves
+from plantbench.generate.foliage import foliage_params, place_leaves
 from plantbench.generate.params_wp import BranchLevel, StemLevel, WeberPennSpecies
-from plantbench.generate.space_colonisation import foliage_params
-from plantbench.geometry.tubes import _levels, depths, node_frames, tube_mesh
+from plantbench.geometry.tubes import node_frames, tube_mesh
+from plantbench.geometry.vectors import depths, levels
 from plantbench.plant import Plant, Skeleton
 
 __all__ = ["shape_ratio", "taper_radius", "flare_factor", "WeberPennSkeleton", "grow_skeleton", "grow"]
@@ -151,6 +151,8 @@ class WeberPennSkeleton:
 
 
 class _Builder:
+    """The skeleton as it grows: node arrays in chunks (one per run of nodes) and the leaf-bearing nodes."""
+
     def __init__(self) -> None:
         self.pos: list[np.ndarray] = []
         self.rad: list[np.ndarray] = []
@@ -158,8 +160,12 @@ class _Builder:
         self.lat: list[np.ndarray] = []
         self.lev: list[np.ndarray] = []
         self.n = 0
+        self.leaf_nodes: list[np.ndarray] = []
+        self.leaf_index: list[np.ndarray] = []
+        self.leaf_factor: list[np.ndarray] = []
 
     def add(self, pos: np.ndarray, rad: np.ndarray, prev: int, lateral: bool, level: int) -> np.ndarray:
+        """A chain of nodes, the first hanging from ``prev`` (and starting an axis if ``lateral``); returns their ids."""
         m = len(pos)
         ids = self.n + np.arange(m)
         par = ids - 1
@@ -173,6 +179,47 @@ class _Builder:
         self.lev.append(np.full(m, level, np.int64))
         self.n += m
         return ids
+
+    def add_leaves(self, nodes: np.ndarray, index: np.ndarray, factor: np.ndarray) -> None:
+        """Leaves at ``nodes``: their phyllotaxis step along the twig and their size factor."""
+        self.leaf_nodes.append(nodes)
+        self.leaf_index.append(index)
+        self.leaf_factor.append(factor)
+
+    def skeleton(self, min_radius: float, stems: list[int], clones: int) -> WeberPennSkeleton:
+        """The grown skeleton, radii at least ``min_radius`` and never thicker than the parent, leaves by node."""
+        pos = np.concatenate(self.pos)
+        parents = np.concatenate(self.par)
+        radii = np.maximum(np.concatenate(self.rad), min_radius)
+        for idx in levels(parents)[1:]:  # never thicker than the parent
+            radii[idx] = np.minimum(radii[idx], radii[parents[idx]])
+        ln = np.concatenate(self.leaf_nodes) if self.leaf_nodes else np.zeros(0, np.int64)
+        li = np.concatenate(self.leaf_index) if self.leaf_index else np.zeros(0, np.int64)
+        lfac = np.concatenate(self.leaf_factor) if self.leaf_factor else np.zeros(0)
+        order = np.argsort(ln, kind="stable")
+        return WeberPennSkeleton(pos, radii, parents, np.concatenate(self.lev), np.concatenate(self.lat), ln[order],
+                                 li[order], lfac[order], tuple(stems), clones)
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """The layout of one stem, shared by all its clones: nodes at the segment ends and at every child's and leaf's
+    offset (metres from the stem's base), each node's segment and radius, where children and leaves sit."""
+
+    p: StemLevel
+    child: BranchLevel | None  # the level of the stem's children (None on the deepest stems)
+    per: int  # children per node
+    base: float  # fraction of the stem (from its base) without children
+    child_offs: np.ndarray
+    leaf_offs: np.ndarray
+    node_offs: np.ndarray
+    node_seg: np.ndarray
+    seg_lo: np.ndarray  # nodes seg_lo[i]:seg_hi[i] end on segment i
+    seg_hi: np.ndarray
+    child_at: np.ndarray  # node of each child
+    leaf_at: np.ndarray  # node of each leaf
+    node_r: np.ndarray
+    split_seg: int  # segment after which the trunk splits into base_splits clones (-1: none)
 
 
 def _count(x: float, rng: np.random.Generator) -> int:
@@ -234,188 +281,266 @@ def _child_side(arr: str, h: Vec, n: Vec, phi: float, group: int, jitter: float)
     return _lin(math.cos(phi), n, math.sin(phi), _cross(h, n))
 
 
-def grow_skeleton(spec: WeberPennSpecies, rng: np.random.Generator, *, scale: float = 1.0) -> WeberPennSkeleton:
-    """The recursive stems of one plant (all random draws from ``rng``, in a fixed order)."""
-    if not (0.0 < float(scale) <= 1.0):
-        raise InputError(f"scale must be in (0, 1], got {scale}", field="scale")
+def _trunk(spec: WeberPennSpecies, rng: np.random.Generator, scale: float) -> _Stem:
+    """The trunk: ``Scale +- ScaleV`` (times scale^(1/3)) by ``0Length +- 0LengthV``, radius ``L0 Ratio``, its
+    curvature axis at a random azimuth."""
     t = spec.tree
-    branch_levels = spec.branch_levels
-    last = len(branch_levels)  # level of the leaf-bearing stems
-    count_scale = float(scale) ** (1.0 / max(last, 1))
-    size = (t.scale + rng.uniform(-1.0, 1.0) * t.scale_v) * float(scale) ** (1.0 / 3.0)
+    size = (t.scale + rng.uniform(-1.0, 1.0) * t.scale_v) * scale ** (1.0 / 3.0)
     size = max(size, 0.05)
     trunk_len = size * max(spec.trunk.length + rng.uniform(-1.0, 1.0) * spec.trunk.length_v, 0.05)
     azimuth = rng.uniform(0.0, 2.0 * math.pi)
-    queue = [_Stem(0, -1, np.zeros(3), _Z, (math.cos(azimuth), math.sin(azimuth), 0.0), trunk_len,
-                   trunk_len * t.ratio, 0.0, trunk_len)]
+    return _Stem(0, -1, np.zeros(3), _Z, (math.cos(azimuth), math.sin(azimuth), 0.0), trunk_len, trunk_len * t.ratio,
+                 0.0, trunk_len)
+
+
+def _child_offsets(spec: WeberPennSpecies, stem: _Stem, base: float, count_scale: float,
+                   rng: np.random.Generator) -> tuple[BranchLevel | None, int, np.ndarray]:
+    """The level of the stem's children (None on the deepest stems), children per node and the children's offsets
+    along the stem: the paper's counts (module docstring) times ``count_scale``, evenly above ``base``."""
+    branch_levels = spec.branch_levels
+    level = stem.level
+    if level >= len(branch_levels):
+        return None, 1, np.zeros(0)
+    child = branch_levels[level]
+    L = stem.length
+    if level == 0:
+        n_child = child.branches
+    elif level == 1:
+        n_child = child.branches * (0.2 + 0.8 * (L / stem.parent_length) / branch_levels[0].length)
+    else:
+        n_child = child.branches * (1.0 - 0.5 * stem.offset / stem.parent_length)
+    per = _PER_NODE.get(child.arrangement, child.whorl_count)
+    return child, per, _even_offsets(_count(n_child * count_scale / per, rng), L, base, rng)
+
+
+def _leaf_offsets(spec: WeberPennSpecies, stem: _Stem, rng: np.random.Generator) -> np.ndarray:
+    """Offsets of the leaves (or leaf pairs, whorls) along a stem of the deepest level, evenly above ``start``:
+    ``per_stem ShapeRatio(distribution, offset / L_parent)``; none on other stems."""
+    lv = spec.leaves
+    level = stem.level
+    if level != len(spec.branch_levels) or lv.per_stem <= 0:
+        return np.zeros(0)
+    r = 1.0 if level == 0 else stem.offset / stem.parent_length
+    n_leaf = lv.per_stem * float(shape_ratio(lv.distribution, np.array([r]))[0])
+    leaf_per = {"spiral": 1, "opposite": 2, "whorl": lv.whorl_count}[lv.arrangement]
+    return _even_offsets(_count(n_leaf / leaf_per, rng), stem.length, lv.start, rng)
+
+
+def _plan(spec: WeberPennSpecies, stem: _Stem, count_scale: float, rng: np.random.Generator) -> _Plan:
+    """Children and leaves of ``stem`` (the stem's random counts and offsets) and the node layout they give."""
+    t = spec.tree
+    level = stem.level
+    p = _level_params(spec, level)
+    L = stem.length
+    res = p.curve_res
+    sl = L / res
+    base = t.base_size if level == 0 else p.base_size  # type: ignore[union-attr]
+    child, per, child_offs = _child_offsets(spec, stem, base, count_scale, rng)
+    leaf_offs = _leaf_offsets(spec, stem, rng)
+    seg_ends = sl * np.arange(1, res + 1)
+    seg_ends[-1] = L
+    node_offs = np.unique(np.concatenate([child_offs, leaf_offs, seg_ends]))
+    keep = np.ones(len(node_offs), bool)
+    keep[1:] = np.diff(node_offs) > 1e-9 * L
+    node_offs = node_offs[keep]
+    node_seg = np.clip(np.searchsorted(seg_ends, node_offs - 1e-9 * L), 0, res - 1)
+    seg_lo = np.searchsorted(node_seg, np.arange(res), "left")
+    seg_hi = np.searchsorted(node_seg, np.arange(res), "right")
+    child_at = np.clip(np.searchsorted(node_offs, child_offs - 1e-9 * L), 0, len(node_offs) - 1)
+    leaf_at = np.clip(np.searchsorted(node_offs, leaf_offs - 1e-9 * L), 0, len(node_offs) - 1)
+    z = node_offs / L
+    node_r = taper_radius(z, stem.radius, p.taper, L)
+    if level == 0:
+        node_r = node_r * flare_factor(z, t.flare)
+    split_seg = min(max(round(t.base_size * res) - 1, 0), res - 2) if (level == 0 and t.base_splits > 0) else -1
+    return _Plan(p, child, per, base, child_offs, leaf_offs, node_offs, node_seg, seg_lo, seg_hi, child_at, leaf_at,
+                 node_r, split_seg)
+
+
+def _split_count(path: _Path, i: int, plan: _Plan, base_splits: int) -> int:
+    """Clones at the end of segment i: ``base_splits`` where the trunk reaches its crown base, else ``seg_splits``
+    with the fractional part carried along the path."""
+    if i == plan.split_seg and not path.clone:
+        return base_splits
+    e = plan.p.seg_splits + path.err
+    n_split = int(e)
+    path.err = e - n_split
+    return n_split
+
+
+def _split(path: _Path, i: int, n_split: int, p: StemLevel, rng: np.random.Generator) -> list[_Path]:
+    """Split ``path`` after segment i into ``n_split + 1`` stems spread evenly around its axis, each deflected by
+    ``split_angle``, radius divided by sqrt(n_split + 1). The path goes on as the first; returns the others, to be
+    pushed in this order (last first)."""
+    k = n_split + 1
+    ang = math.radians(max(0.0, p.split_angle + rng.uniform(-1.0, 1.0) * p.split_angle_v))
+    phase = rng.uniform(0.0, 2.0 * math.pi)
+    h, n0 = path.heading, path.normal
+    heads = []
+    for j in range(k):
+        phi = phase + 2.0 * math.pi * j / k
+        side = _lin(math.cos(phi), n0, math.sin(phi), _cross(h, n0))
+        axis = _unit(_cross(h, side))
+        heads.append((_unit(_rotate(h, axis, ang)), _unit(_rotate(n0, axis, ang))))
+    rfac = path.rfac / math.sqrt(k)
+    clones = [_Path(i + 1, path.pos.copy(), heads[j][0], heads[j][1], rfac, path.err, path.prev, True, True)
+              for j in range(k - 1, 0, -1)]
+    path.heading, path.normal = heads[0]
+    path.rfac = rfac
+    return clones
+
+
+def _grow_path(spec: WeberPennSpecies, stem: _Stem, plan: _Plan, path: _Path, b: _Builder,
+               rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, dict[int, tuple[Vec, Vec]], list[_Path]]:
+    """Grow ``path`` segment by segment (:func:`_segment_turn`) to the stem's end, splitting off clones; a branch
+    that would reach the ground stops there.
+
+    Returns the id (-1: not grown on this path) and position of each of the plan's nodes, the heading and curvature
+    axis of each grown segment, and the clones split off.
+    """
+    p = plan.p
+    level = stem.level
+    res = p.curve_res
+    sl = stem.length / res
+    clearance = spec.wood.ground_clearance
+    node_ids = np.full(len(plan.node_offs), -1, np.int64)
+    node_pts = np.zeros((len(plan.node_offs), 3))
+    seg_frame: dict[int, tuple[Vec, Vec]] = {}
+    clones: list[_Path] = []
+    for i in range(path.seg, res):
+        _segment_turn(path, i, p, rng)
+        h = path.heading
+        lo, hi = plan.seg_lo[i], plan.seg_hi[i]
+        pts = path.pos + np.asarray(h) * (plan.node_offs[lo:hi, None] - i * sl)
+        if (level > 0 and pts[-1, 2] < clearance) or pts[-1, 2] < 0.0:
+            break  # the branch would reach the ground: it stops here
+        ids = b.add(pts, plan.node_r[lo:hi] * path.rfac, path.prev, path.lateral, level)
+        node_ids[lo:hi] = ids
+        node_pts[lo:hi] = pts
+        seg_frame[i] = (h, path.normal)
+        path.pos = pts[-1]
+        path.prev = int(ids[-1])
+        path.lateral = False
+        if i >= res - 1:
+            break
+        n_split = _split_count(path, i, plan, spec.tree.base_splits)
+        if n_split > 0:
+            clones += _split(path, i, n_split, p, rng)
+    return node_ids, node_pts, seg_frame, clones
+
+
+def _down_angle(child: BranchLevel, length: float, offset: float, base: float, rng: np.random.Generator) -> float:
+    """A child's angle from its parent's direction, degrees: ``down_angle +- down_angle_v``, or for a negative
+    ``down_angle_v`` ``down_angle + down_angle_v (1 - 2 ShapeRatio(conical, r))``, r = 1 at the parent's base."""
+    if child.down_angle_v >= 0:
+        return child.down_angle + rng.uniform(-1.0, 1.0) * child.down_angle_v
+    rr = np.clip((length - offset) / max(length * (1.0 - base), 1e-9), 0.0, 1.0)
+    return child.down_angle + child.down_angle_v * (1.0 - 2.0 * (0.2 + 0.8 * rr))
+
+
+def _child_frame(h: Vec, side: Vec, down: float) -> tuple[Vec, Vec]:
+    """Heading of a child leaving a parent of heading ``h`` at ``down`` degrees towards ``side``, and its curvature
+    axis (perpendicular to the plane of the two headings)."""
+    d = math.radians(down)
+    hc = _unit(_lin(math.cos(d), h, math.sin(d), side))
+    axis = _cross(h, side)
+    if _norm(axis) < 1e-9:
+        axis = side
+    return hc, _unit(_lin(1.0, axis, -_dot(axis, hc), hc))
+
+
+def _child_length(spec: WeberPennSpecies, child: BranchLevel, stem: _Stem, offset: float,
+                  rng: np.random.Generator) -> float:
+    """A child's length at ``offset`` on ``stem`` (module docstring: ShapeRatio on the trunk, else the parent's
+    length left beyond it)."""
+    t = spec.tree
+    L = stem.length
+    lf = child.length + rng.uniform(-1.0, 1.0) * child.length_v
+    if stem.level == 0:
+        rr = (L - offset) / max(L * (1.0 - t.base_size), 1e-9)
+        return L * lf * float(shape_ratio(t.shape, np.array([rr]))[0])
+    return lf * (L - 0.7 * offset)
+
+
+def _spawn_children(spec: WeberPennSpecies, stem: _Stem, plan: _Plan, rfac: float, node_ids: np.ndarray,
+                    node_pts: np.ndarray, seg_frame: dict[int, tuple[Vec, Vec]], queue: list[_Stem],
+                    rng: np.random.Generator) -> None:
+    """Queue the children at the grown nodes of one path of ``stem`` (radius factor ``rfac``), rolled by ``rotate``
+    in the level's arrangement; children shorter than a millimetre are dropped."""
+    child = plan.child
+    assert child is not None
+    L = stem.length
+    per = plan.per
+    phi = rng.uniform(0.0, 2.0 * math.pi)
+    for g in np.flatnonzero(node_ids[plan.child_at] >= 0):
+        at = plan.child_at[g]
+        node = int(node_ids[at])
+        o = float(plan.child_offs[g])
+        h, n = seg_frame[int(plan.node_seg[at])]
+        r_node = float(plan.node_r[at] * rfac)
+        if child.arrangement == "spiral" or g > 0:
+            phi += math.radians(child.rotate + rng.uniform(-1.0, 1.0) * child.rotate_v)
+        for j in range(per):
+            if child.arrangement == "opposite":
+                phj = phi + math.pi * j
+            elif child.arrangement == "whorl":
+                phj = phi + 2.0 * math.pi * j / per
+            else:
+                phj = phi
+            jit = math.radians(rng.uniform(-1.0, 1.0) * child.rotate_v)
+            side = _unit(_child_side(child.arrangement, h, n, phj, int(g), jit))
+            hc, nc = _child_frame(h, side, _down_angle(child, L, o, plan.base, rng))
+            lc = _child_length(spec, child, stem, o, rng)
+            if lc <= 1e-3:
+                continue
+            rc = min(stem.radius * (lc / L) ** spec.tree.ratio_power, r_node)
+            queue.append(_Stem(stem.level + 1, node, node_pts[at].copy(), hc, nc, lc, rc, o, L))
+
+
+def _grow_stem(spec: WeberPennSpecies, stem: _Stem, count_scale: float, b: _Builder, queue: list[_Stem],
+               rng: np.random.Generator) -> int:
+    """Grow ``stem`` as a stack of paths (the stem, then its clones, each grown after the path it split from),
+    record the leaves on each path and queue the children; returns the number of clones."""
+    plan = _plan(spec, stem, count_scale, rng)
+    prev = stem.parent_node
+    if stem.level == 0:  # the root node
+        prev = int(b.add(np.zeros((1, 3)), np.array([stem.radius * flare_factor(0.0, spec.tree.flare)]), -1, False,
+                         0)[0])
+    clones = 0
+    stack = [_Path(0, stem.start.copy(), stem.heading, stem.normal, 1.0, 0.0, prev, stem.level > 0, False)]
+    while stack:
+        path = stack.pop()
+        node_ids, node_pts, seg_frame, split = _grow_path(spec, stem, plan, path, b, rng)
+        stack += split
+        clones += len(split)
+        if len(plan.leaf_offs):
+            got = node_ids[plan.leaf_at]
+            ok = got >= 0
+            b.add_leaves(got[ok], np.arange(len(plan.leaf_offs))[ok],
+                         shape_ratio(spec.leaves.size_profile, 1.0 - plan.leaf_offs[ok] / stem.length))
+        if plan.child is not None and len(plan.child_offs):
+            _spawn_children(spec, stem, plan, path.rfac, node_ids, node_pts, seg_frame, queue, rng)
+    return clones
+
+
+def grow_skeleton(spec: WeberPennSpecies, rng: np.random.Generator, *, scale: float = 1.0) -> WeberPennSkeleton:
+    """The recursive stems of one plant (all random draws from ``rng``, in a fixed order): the trunk, then every
+    stem in the order it was queued (breadth first), each queueing its children."""
+    if not (0.0 < float(scale) <= 1.0):
+        raise InputError(f"scale must be in (0, 1], got {scale}", field="scale")
+    last = len(spec.branch_levels)  # level of the leaf-bearing stems
+    count_scale = float(scale) ** (1.0 / max(last, 1))
+    queue = [_trunk(spec, rng, float(scale))]
     b = _Builder()
-    leaf_nodes: list[np.ndarray] = []
-    leaf_index: list[np.ndarray] = []
-    leaf_factor: list[np.ndarray] = []
     stems = [0] * (last + 1)
     clones = 0
-    lv = spec.leaves
-    leaf_per = {"spiral": 1, "opposite": 2, "whorl": lv.whorl_count}[lv.arrangement]
-    clearance = spec.wood.ground_clearance
     head = 0
     while head < len(queue):
         stem = queue[head]
         head += 1
-        level = stem.level
-        p = _level_params(spec, level)
-        L = stem.length
-        res = p.curve_res
-        sl = L / res
-        stems[level] += 1
-        # children: counts and offsets along the stem (the same for every clone of the stem)
-        child: BranchLevel | None = branch_levels[level] if level < last else None
-        child_offs = np.zeros(0)
-        per = 1
-        if child is not None:
-            if level == 0:
-                n_child = child.branches
-            elif level == 1:
-                n_child = child.branches * (0.2 + 0.8 * (L / stem.parent_length) / branch_levels[0].length)
-            else:
-                n_child = child.branches * (1.0 - 0.5 * stem.offset / stem.parent_length)
-            per = _PER_NODE.get(child.arrangement, child.whorl_count)
-            base = t.base_size if level == 0 else p.base_size  # type: ignore[union-attr]
-            child_offs = _even_offsets(_count(n_child * count_scale / per, rng), L, base, rng)
-        # leaves on the deepest stems
-        leaf_offs = np.zeros(0)
-        if level == last and lv.per_stem > 0:
-            r = 1.0 if level == 0 else stem.offset / stem.parent_length
-            n_leaf = lv.per_stem * float(shape_ratio(lv.distribution, np.array([r]))[0])
-            leaf_offs = _even_offsets(_count(n_leaf / leaf_per, rng), L, lv.start, rng)
-        seg_ends = sl * np.arange(1, res + 1)
-        seg_ends[-1] = L
-        node_offs = np.unique(np.concatenate([child_offs, leaf_offs, seg_ends]))
-        keep = np.ones(len(node_offs), bool)
-        keep[1:] = np.diff(node_offs) > 1e-9 * L
-        node_offs = node_offs[keep]
-        node_seg = np.clip(np.searchsorted(seg_ends, node_offs - 1e-9 * L), 0, res - 1)
-        seg_lo = np.searchsorted(node_seg, np.arange(res), "left")
-        seg_hi = np.searchsorted(node_seg, np.arange(res), "right")
-        child_at = np.clip(np.searchsorted(node_offs, child_offs - 1e-9 * L), 0, len(node_offs) - 1)
-        leaf_at = np.clip(np.searchsorted(node_offs, leaf_offs - 1e-9 * L), 0, len(node_offs) - 1)
-        z = node_offs / L
-        node_r = taper_radius(z, stem.radius, p.taper, L)
-        if level == 0:
-            node_r = node_r * flare_factor(z, t.flare)
-        prev = stem.parent_node
-        if level == 0:  # the root node
-            prev = int(b.add(np.zeros((1, 3)), np.array([stem.radius * flare_factor(0.0, t.flare)]), -1, False, 0)[0])
-        split_seg = min(max(round(t.base_size * res) - 1, 0), res - 2) if (level == 0 and t.base_splits > 0) else -1
-        stack = [_Path(0, stem.start.copy(), stem.heading, stem.normal, 1.0, 0.0, prev, level > 0,
-                       False)]
-        while stack:
-            path = stack.pop()
-            node_ids = np.full(len(node_offs), -1, np.int64)
-            node_pts = np.zeros((len(node_offs), 3))
-            seg_frame: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-            for i in range(path.seg, res):
-                _segment_turn(path, i, p, rng)
-                h = path.heading
-                lo, hi = seg_lo[i], seg_hi[i]
-                pts = path.pos + np.asarray(h) * (node_offs[lo:hi, None] - i * sl)
-                if (level > 0 and pts[-1, 2] < clearance) or pts[-1, 2] < 0.0:
-                    break  # the branch would reach the ground: it stops here
-                ids = b.add(pts, node_r[lo:hi] * path.rfac, path.prev, path.lateral, level)
-                node_ids[lo:hi] = ids
-                node_pts[lo:hi] = pts
-                seg_frame[i] = (h, path.normal)
-                path.pos = pts[-1]
-                path.prev = int(ids[-1])
-                path.lateral = False
-                if i >= res - 1:
-                    break
-                if i == split_seg and not path.clone:
-                    n_split = t.base_splits
-                else:
-                    e = p.seg_splits + path.err
-                    n_split = int(e)
-                    path.err = e - n_split
-                if n_split <= 0:
-                    continue
-                k = n_split + 1
-                clones += n_split
-                ang = math.radians(max(0.0, p.split_angle + rng.uniform(-1.0, 1.0) * p.split_angle_v))
-                phase = rng.uniform(0.0, 2.0 * math.pi)
-                n0 = path.normal
-                heads = []
-                for j in range(k):
-                    phi = phase + 2.0 * math.pi * j / k
-                    side = _lin(math.cos(phi), n0, math.sin(phi), _cross(h, n0))
-                    axis = _unit(_cross(h, side))
-                    heads.append((_unit(_rotate(h, axis, ang)), _unit(_rotate(n0, axis, ang))))
-                rfac = path.rfac / math.sqrt(k)
-                for j in range(k - 1, 0, -1):  # clones: pushed, grown after this path
-                    stack.append(_Path(i + 1, path.pos.copy(), heads[j][0], heads[j][1], rfac, path.err, path.prev,
-                                       True, True))
-                path.heading, path.normal = heads[0]
-                path.rfac = rfac
-            # leaves of this path
-            if len(leaf_offs):
-                got = node_ids[leaf_at]
-                ok = got >= 0
-                leaf_nodes.append(got[ok])
-                leaf_index.append(np.arange(len(leaf_offs))[ok])
-                leaf_factor.append(shape_ratio(lv.size_profile, 1.0 - leaf_offs[ok] / L))
-            # children of this path
-            if child is None or not len(child_offs):
-                continue
-            phi = rng.uniform(0.0, 2.0 * math.pi)
-            for g in np.flatnonzero(node_ids[child_at] >= 0):
-                node = int(node_ids[child_at[g]])
-                o = float(child_offs[g])
-                h, n = seg_frame[int(node_seg[child_at[g]])]
-                r_node = float(node_r[child_at[g]] * path.rfac)
-                if child.arrangement == "spiral":
-                    phi += math.radians(child.rotate + rng.uniform(-1.0, 1.0) * child.rotate_v)
-                elif g > 0:
-                    phi += math.radians(child.rotate + rng.uniform(-1.0, 1.0) * child.rotate_v)
-                for j in range(per):
-                    if child.arrangement == "opposite":
-                        phj = phi + math.pi * j
-                    elif child.arrangement == "whorl":
-                        phj = phi + 2.0 * math.pi * j / per
-                    else:
-                        phj = phi
-                    jit = math.radians(rng.uniform(-1.0, 1.0) * child.rotate_v)
-                    side = _unit(_child_side(child.arrangement, h, n, phj, int(g), jit))
-                    if child.down_angle_v >= 0:
-                        down = child.down_angle + rng.uniform(-1.0, 1.0) * child.down_angle_v
-                    else:
-                        base = t.base_size if level == 0 else p.base_size  # type: ignore[union-attr]
-                        rr = np.clip((L - o) / max(L * (1.0 - base), 1e-9), 0.0, 1.0)
-                        down = child.down_angle + child.down_angle_v * (1.0 - 2.0 * (0.2 + 0.8 * rr))
-                    d = math.radians(down)
-                    hc = _unit(_lin(math.cos(d), h, math.sin(d), side))
-                    axis = _cross(h, side)
-                    if _norm(axis) < 1e-9:
-                        axis = side
-                    nc = _unit(_lin(1.0, axis, -_dot(axis, hc), hc))
-                    lf = child.length + rng.uniform(-1.0, 1.0) * child.length_v
-                    if level == 0:
-                        rr = (L - o) / max(L * (1.0 - t.base_size), 1e-9)
-                        lc = L * lf * float(shape_ratio(t.shape, np.array([rr]))[0])
-                    else:
-                        lc = lf * (L - 0.7 * o)
-                    if lc <= 1e-3:
-                        continue
-                    rc = min(stem.radius * (lc / L) ** t.ratio_power, r_node)
-                    queue.append(_Stem(level + 1, node, node_pts[child_at[g]].copy(), hc, nc, lc, rc, o, L))
-    pos = np.concatenate(b.pos)
-    parents = np.concatenate(b.par)
-    radii = np.maximum(np.concatenate(b.rad), spec.wood.min_radius)
-    for idx in _levels(parents)[1:]:  # never thicker than the parent
-        radii[idx] = np.minimum(radii[idx], radii[parents[idx]])
-    ln = np.concatenate(leaf_nodes) if leaf_nodes else np.zeros(0, np.int64)
-    li = np.concatenate(leaf_index) if leaf_index else np.zeros(0, np.int64)
-    lfac = np.concatenate(leaf_factor) if leaf_factor else np.zeros(0)
-    order = np.argsort(ln, kind="stable")
-    return WeberPennSkeleton(pos, radii, parents, np.concatenate(b.lev), np.concatenate(b.lat), ln[order],
-                             li[order], lfac[order], tuple(stems), clones)
+        stems[stem.level] += 1
+        clones += _grow_stem(spec, stem, count_scale, b, queue, rng)
+    return b.skeleton(spec.wood.min_radius, stems, clones)
 
 
 def grow(spec: WeberPennSpecies, rng: np.random.Generator, *, scale: float = 1.0) -> Plant:
@@ -429,7 +554,7 @@ def grow(spec: WeberPennSpecies, rng: np.random.Generator, *, scale: float = 1.0
     branch_mesh = tube_mesh(pos, sk.parents, sk.radii, main, max_sides=w.max_sides, min_sides=w.min_sides,
                             edge_length=w.edge_length)
     tangent, normal, _, _ = node_frames(pos, sk.parents, main)
-    foliage = place_leaves(pos, sk.parents, sk.radii, main, tangent, normal, _levels(sk.parents),
+    foliage = place_leaves(pos, sk.parents, sk.radii, main, tangent, normal, levels(sk.parents),
                            foliage_params(spec), rng, nodes=sk.leaf_nodes, axis_index=sk.leaf_index,
                            length_factor=sk.leaf_factor)
     meta = {

@@ -7,25 +7,20 @@
 - :func:`tube_mesh`: one ring per node (on its axis) plus one start ring per lateral at the parent node (inside
   the parent tube, since a child is never thicker), quads between successive rings, a cone cap on every tip.
   Ring sides follow the axis thickness. Normals point outwards (counter-clockwise seen from outside).
+
+``unit`` and ``depths`` are :mod:`plantbench.geometry.vectors`'s, named here too for the modules that import them
+from here.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from plantbench.geometry.vectors import depths, levels, perpendicular, unit
 from plantbench.plant import TriMesh
 
 __all__ = ["unit", "depths", "axis_positions", "main_child_mask", "supported_lengths", "supported_length_radii",
            "node_frames", "tube_mesh"]
-
-
-def unit(v: np.ndarray) -> np.ndarray:
-    """``v`` (..., 3) normalised along its last axis; zero vectors stay zero."""
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return v / np.where(n > 1e-15, n, 1.0)
-
-
-_unit = unit
 
 
 def axis_positions(parents: np.ndarray, main: np.ndarray, levels: list[np.ndarray]) -> np.ndarray:
@@ -38,41 +33,6 @@ def axis_positions(parents: np.ndarray, main: np.ndarray, levels: list[np.ndarra
     return k
 
 
-def _perpendicular(d: np.ndarray) -> np.ndarray:
-    a = np.where(np.abs(d[:, [0]]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    return _unit(np.cross(d, a))
-
-
-def depths(parents: np.ndarray) -> np.ndarray:
-    """(n,) int number of edges from each node to its root (parents need not precede children)."""
-    parents = np.asarray(parents, dtype=np.int64)
-    n = len(parents)
-    # level propagation from the roots
-    depth = np.full(n, -1, np.int64)
-    depth[parents < 0] = 0
-    frontier = np.flatnonzero(parents < 0)
-    kids_order = np.argsort(parents, kind="stable")
-    sorted_par = parents[kids_order]
-    d = 0
-    while len(frontier):
-        lo = np.searchsorted(sorted_par, frontier, "left")
-        hi = np.searchsorted(sorted_par, frontier, "right")
-        total = hi - lo
-        if total.sum() == 0:
-            break
-        starts = np.repeat(lo, total) + (np.arange(total.sum()) - np.repeat(np.cumsum(total) - total, total))
-        frontier = kids_order[starts]
-        d += 1
-        depth[frontier] = d
-    return depth
-
-
-def _levels(parents: np.ndarray) -> list[np.ndarray]:
-    dep = depths(parents)
-    order = np.argsort(dep, kind="stable")
-    return np.split(order, np.flatnonzero(np.diff(dep[order])) + 1)
-
-
 def supported_lengths(positions: np.ndarray, parents: np.ndarray) -> np.ndarray:
     """(n,) branch length each node supports: its incoming internode plus everything above it, metres."""
     n = len(parents)
@@ -80,7 +40,7 @@ def supported_lengths(positions: np.ndarray, parents: np.ndarray) -> np.ndarray:
     has = parents >= 0
     inc[has] = np.linalg.norm(positions[has] - positions[parents[has]], axis=1)
     total = inc.copy()
-    for idx in reversed(_levels(parents)):
+    for idx in reversed(levels(parents)):
         c = idx[parents[idx] >= 0]
         np.add.at(total, parents[c], total[c])
     return total
@@ -125,33 +85,33 @@ def node_frames(positions: np.ndarray, parents: np.ndarray, main: np.ndarray
     n = len(parents)
     has = parents >= 0
     e_in = np.zeros((n, 3))
-    e_in[has] = _unit(positions[has] - positions[parents[has]])
+    e_in[has] = unit(positions[has] - positions[parents[has]])
     e_out = np.zeros((n, 3))
     mc = np.flatnonzero(main & has)
     e_out[parents[mc]] = e_in[mc]
-    tangent = _unit(e_in + e_out)
+    tangent = unit(e_in + e_out)
     deg = np.linalg.norm(tangent, axis=1) < 1e-9
     tangent[deg] = np.array([0.0, 0.0, 1.0])
     normal = np.zeros((n, 3))
     start_normal = np.zeros((n, 3))
-    for idx in _levels(parents):
+    for idx in levels(parents):
         root = parents[idx] < 0
         r = idx[root]
-        normal[r] = _perpendicular(tangent[r])
+        normal[r] = perpendicular(tangent[r])
         c = idx[~root]
         ref = normal[parents[c]]
         lat = ~main[c]
         # lateral: first through the start ring (tangent = first internode)
         lref = ref[lat] - np.sum(ref[lat] * e_in[c[lat]], 1, keepdims=True) * e_in[c[lat]]
         bad = np.linalg.norm(lref, axis=1) < 1e-9
-        lref[bad] = _perpendicular(e_in[c[lat]][bad])
-        start_normal[c[lat]] = _unit(lref)
+        lref[bad] = perpendicular(e_in[c[lat]][bad])
+        start_normal[c[lat]] = unit(lref)
         ref[lat] = start_normal[c[lat]]
         t = tangent[c]
         proj = ref - np.sum(ref * t, 1, keepdims=True) * t
         bad = np.linalg.norm(proj, axis=1) < 1e-9
-        proj[bad] = _perpendicular(t[bad])
-        normal[c] = _unit(proj)
+        proj[bad] = perpendicular(t[bad])
+        normal[c] = unit(proj)
     return tangent, normal, e_in, start_normal
 
 
@@ -168,7 +128,7 @@ def tube_mesh(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, mai
     tangent, normal, start_t, start_n = node_frames(positions, parents, main)
     # axis id and its base radius (thickest ring on the axis: the first one)
     axis = np.arange(n)
-    for idx in _levels(parents):
+    for idx in levels(parents):
         c = idx[(parents[idx] >= 0) & main[idx]]
         axis[c] = axis[parents[c]]
     base_r = radii[axis]

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["unit", "perpendicular", "rotate", "depths", "levels", "levels_of"]
+__all__ = ["unit", "perpendicular", "rotate", "similarity_transform", "depths", "levels", "levels_of"]
 
 
 def unit(v: np.ndarray) -> np.ndarray:
@@ -32,6 +32,21 @@ def rotate(v: np.ndarray, axis: np.ndarray, angle: float | np.ndarray) -> np.nda
         c = c[:, None]
         s = s[:, None]
     return v * c + np.cross(axis, v) * s + axis * np.sum(axis * v, axis=1, keepdims=True) * (1 - c)
+
+
+def similarity_transform(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Umeyama (1991): scale s, rotation R, translation t minimising sum |s R src_i + t - dst_i|^2 (src, dst : (k, 3))."""
+    ms, md = src.mean(0), dst.mean(0)
+    xs, xd = src - ms, dst - md
+    cov = xd.T @ xs / len(src)
+    u, sig, vt = np.linalg.svd(cov)
+    s_ = np.eye(3)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        s_[2, 2] = -1
+    rot = u @ s_ @ vt
+    var = (xs**2).sum() / len(src)
+    scale = float(np.trace(np.diag(sig) @ s_) / max(var, 1e-300))
+    return scale, rot, md - scale * rot @ ms
 
 
 def depths(parents: np.ndarray) -> np.ndarray:

@@ -36,22 +36,30 @@ def _add(name: str, unit: str, higher: bool | None, description: str) -> None:
     METRICS[name] = MetricInfo(name, unit, higher, description)
 
 
+def _add_group(prefix: str, unit: str, higher: bool | None, descriptions: dict[str, str]) -> None:
+    """Register ``prefix.key`` for every key of ``descriptions`` (in its order), all with one unit and direction."""
+    for key, description in descriptions.items():
+        _add(f"{prefix}.{key}", unit, higher, description)
+
+
 for _v, _what in (("stava", "with split/merge of chains"), ("stava_nosplit", "plain Zhang, no split/merge")):
     _add(f"{_v}.S_T", "", True, f"Stava et al. 2014 similarity 1 - (d_S + d_G + d_T)/3, {_what}")
     _add(f"{_v}.d_S", "", False, f"Stava shape distance (13 crown descriptors), {_what}")
     _add(f"{_v}.d_G", "", False, f"Stava geometric distance (20 branch-statistics descriptors), {_what}")
     _add(f"{_v}.d_T", "", False, f"Stava structural distance (normalised constrained tree edit distance), {_what}")
 
-_add("mesh_to_scan.D_cm", "cm", False,
-     "mean distance, reconstructed mesh vertex -> nearest scan point (Guo et al. 2018, D)")
-_add("mesh_to_scan.sigma_cm", "cm", False, "std of vertex -> nearest scan point distance (Guo et al. 2018, sigma)")
-_add("mesh_to_scan.reverse_D_cm", "cm", False, "mean distance, scan point -> reconstructed surface")
-_add("mesh_to_scan.reverse_sigma_cm", "cm", False, "std of scan point -> reconstructed surface distance")
-_add("mesh_to_scan.area_D_cm", "cm", False, "mean distance, area-uniform sample of the reconstruction -> scan point")
-_add("mesh_to_scan.symmetric_cm", "cm", False, "(area_D + reverse_D) / 2")
-_add("mesh_to_surface.D_cm", "cm", False,
-     "D of Guo et al. 2018 against a perfect scan: mean exact distance, reconstructed vertex -> GT surface")
-_add("mesh_to_surface.sigma_cm", "cm", False, "std of exact vertex -> ground-truth surface distance")
+_add_group("mesh_to_scan", "cm", False, {
+    "D_cm": "mean distance, reconstructed mesh vertex -> nearest scan point (Guo et al. 2018, D)",
+    "sigma_cm": "std of vertex -> nearest scan point distance (Guo et al. 2018, sigma)",
+    "reverse_D_cm": "mean distance, scan point -> reconstructed surface",
+    "reverse_sigma_cm": "std of scan point -> reconstructed surface distance",
+    "area_D_cm": "mean distance, area-uniform sample of the reconstruction -> scan point",
+    "symmetric_cm": "(area_D + reverse_D) / 2",
+})
+_add_group("mesh_to_surface", "cm", False, {
+    "D_cm": "D of Guo et al. 2018 against a perfect scan: mean exact distance, reconstructed vertex -> GT surface",
+    "sigma_cm": "std of exact vertex -> ground-truth surface distance",
+})
 
 _add("reprojection.error", "", False, "Guenard Eq. 3: |render XOR reference mask| / |reference mask|, mean over views")
 _add("reprojection.error_max", "", False, "worst view's reprojection error")

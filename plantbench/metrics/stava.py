@@ -149,6 +149,9 @@ def _angle(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
+    """``v`` normalised along its last axis, 0 where its norm is <= _EPS: a chord of a chain that folds back to
+    within _EPS of where it started has no direction (:func:`plantbench.geometry.vectors.unit` normalises every
+    norm above 1e-15 and leaves smaller vectors as they are)."""
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     return np.divide(v, n, out=np.zeros_like(v), where=n > _EPS)
 

@@ -63,7 +63,8 @@ def job_environment(threads: int | None) -> dict[str, str]:
 
     ``MALLOC_TRIM_THRESHOLD_`` is dropped: Dask's nanny sets it to 64 KiB in its workers
     (``distributed.nanny.pre-spawn-environ``) to keep a long-lived worker's memory down, and a job process that
-    inherits it returns every freed array buffer to the kernel and faults it back in."""
+    inherits it returns every freed array buffer to the kernel and faults it back in (what that cost:
+    docs/tuning/runner.md)."""
     env = dict(os.environ)
     env.pop("MALLOC_TRIM_THRESHOLD_", None)
     if threads is not None:
@@ -169,11 +170,9 @@ DASK_CLUSTER_CONFIG = {
 """Dask settings for a cluster that runs plantbench jobs. A task only waits on its job process, so what Dask does
 to watch its own workers at a 10-500 ms cadence is CPU taken from the jobs: the stack-sampling profiler (10 ms),
 the event-loop tick that detects a blocked loop (20 ms), the system monitor (500 ms) and the memory monitor
-(100 ms; the job's memory is in its own process, which it does not see anyway). Measured on a 2-worker
-LocalCluster whose two tasks each wait 20 s on a subprocess: 11 % of a core with the profiler off, 5.2 % with the
-1 s tick, 2.1 % with all of these. Quick suite: profiler off 234.4 -> 222.7 s, user CPU 429 -> 404 s. Applied to
-the executor's own cluster; for one you start, set it before (or export ``DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False``
-and the like, see the README)."""
+(100 ms; the job's memory is in its own process, which it does not see anyway). Applied to the executor's own
+cluster; for one you start, set it before (or export ``DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False`` and the
+like, see the README). What each setting saves: docs/tuning/runner.md."""
 
 
 def _local_threads(client) -> int | None:
@@ -183,6 +182,102 @@ def _local_threads(client) -> int | None:
     local = all(addr.startswith(("inproc://", "tcp://127.0.0.1:", "tcp://localhost:")) for addr in nthreads)
     total = sum(nthreads.values())
     return max(1, (os.cpu_count() or 1) // total) if local and total else None
+
+
+_OUTCOMES = ("computed", "reused", "skipped", "failed")
+
+
+class _Tally:
+    """The bookkeeping of a running plan: each finished job's record, the counts per outcome and per kind, and the
+    ``progress`` callback."""
+
+    def __init__(self, total: int, progress: Callable[[int, int, dict], None] | None) -> None:
+        self.total = total
+        self.progress = progress
+        self.done = 0
+        self.results: dict[str, dict] = {}
+        self.stats = ExecutionStats(dict.fromkeys(_OUTCOMES, 0), by_kind={})
+
+    def record(self, job: Job, rec: dict) -> None:
+        """Count the finished ``job`` with its status record ``rec`` and report it."""
+        self.results[job.key] = rec
+        self.done += 1
+        outcome = "reused" if rec.get("reused") else "skipped" if rec.get("upstream") else "computed"
+        self.stats[outcome] += 1
+        if rec["status"] != "ok":
+            self.stats["failed"] += 1
+        kind_stats = self.stats["by_kind"].setdefault(job.kind, dict.fromkeys(_OUTCOMES, 0))
+        kind_stats[outcome] += 1
+        kind_stats["failed"] += rec["status"] != "ok"
+        if self.progress:
+            self.progress(self.done, self.total, {"kind": job.kind, **rec})
+
+
+def _run_local(plan: Plan, cache: Path, workers: int, tally: _Tally) -> None:
+    """Run the plan on ``workers`` threads: a job is submitted once its dependencies have finished, the ready job
+    with the highest priority (then the earliest in the plan) first. On any error or Ctrl-C the running job
+    processes are killed before it propagates."""
+    workers = max(1, workers)
+    threads = max(1, (os.cpu_count() or 1) // workers) if workers > 1 else None
+    priority = plan.priorities()
+    children = plan.children()
+    waiting = {k: set(job.deps) for k, job in plan.jobs.items()}
+    order = {k: i for i, k in enumerate(plan.jobs)}
+    ready = [(-priority[k], order[k], k) for k in plan.jobs if not waiting[k]]
+    heapq.heapify(ready)
+    running: dict = {}
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        try:
+            while ready or running:
+                while ready and len(running) < workers:
+                    key = heapq.heappop(ready)[2]
+                    running[pool.submit(execute_job, str(cache), asdict(plan.jobs[key]), threads)] = key
+                finished, _ = wait(running, return_when=FIRST_COMPLETED)
+                for fut in finished:
+                    key = running.pop(fut)
+                    tally.record(plan.jobs[key], fut.result())
+                    for child in children[key]:
+                        waiting[child].discard(key)
+                        if not waiting[child]:
+                            heapq.heappush(ready, (-priority[child], order[child], child))
+        except BaseException:
+            kill_running()
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+
+
+def _dask_client(workers: int, scheduler: str | None):
+    """A Dask client of the cluster at ``scheduler``, or of a new LocalCluster of ``workers`` single-threaded
+    workers started with :data:`DASK_CLUSTER_CONFIG`."""
+    try:
+        from dask.distributed import Client
+    except ImportError as exc:
+        from plantbench.errors import InputError
+
+        raise InputError("the dask executor needs the 'cluster' extra: pip install 'plantbench[cluster]'") from exc
+    if scheduler:
+        return Client(scheduler)
+    import dask
+
+    with dask.config.set(DASK_CLUSTER_CONFIG):
+        return Client(n_workers=workers, threads_per_worker=1)
+
+
+def _run_dask(plan: Plan, cache: Path, client, tally: _Tally) -> None:
+    """Submit every job of the plan to ``client`` at once, each after the futures of its dependencies and with its
+    priority, and record the jobs as they complete."""
+    from dask.distributed import as_completed as dask_completed
+
+    priority = plan.priorities()
+    threads = _local_threads(client)
+    futures: dict[str, object] = {}
+    for key, job in plan.jobs.items():  # dependencies first
+        futures[key] = client.submit(_execute_after, str(cache), asdict(job), threads,
+                                     *(futures[d] for d in job.deps), key=f"{job.kind}-{job.key}",
+                                     pure=False, priority=priority[key])
+    jobs_of = {fut.key: plan.jobs[key] for key, fut in futures.items()}
+    for fut in dask_completed(list(futures.values())):
+        tally.record(jobs_of[fut.key], fut.result())
 
 
 def execute_plan(
@@ -203,86 +298,20 @@ def execute_plan(
     """
     cache = Path(cache)
     _STOP.clear()
-    total = len(plan.jobs)
-    priority = plan.priorities()
-    results: dict[str, dict] = {}
-    stats = ExecutionStats(computed=0, reused=0, skipped=0, failed=0, by_kind={})
-    done = 0
-
-    def record(job: Job, rec: dict) -> None:
-        nonlocal done
-        results[job.key] = rec
-        done += 1
-        outcome = "reused" if rec.get("reused") else "skipped" if rec.get("upstream") else "computed"
-        stats[outcome] += 1
-        if rec["status"] != "ok":
-            stats["failed"] += 1
-        kind_stats = stats["by_kind"].setdefault(job.kind, {"computed": 0, "reused": 0, "skipped": 0, "failed": 0})
-        kind_stats[outcome] += 1
-        kind_stats["failed"] += rec["status"] != "ok"
-        if progress:
-            progress(done, total, {"kind": job.kind, **rec})
-
+    tally = _Tally(len(plan.jobs), progress)
     if executor == "dask":
         own_client = client is None
         if own_client:
-            try:
-                from dask.distributed import Client
-            except ImportError as exc:
-                from plantbench.errors import InputError
-
-                raise InputError("the dask executor needs the 'cluster' extra: pip install 'plantbench[cluster]'") from exc
-            if scheduler:
-                client = Client(scheduler)
-            else:
-                import dask
-
-                with dask.config.set(DASK_CLUSTER_CONFIG):
-                    client = Client(n_workers=workers, threads_per_worker=1)
+            client = _dask_client(workers, scheduler)
         try:
-            from dask.distributed import as_completed as dask_completed
-
-            threads = _local_threads(client)
-            futures: dict[str, object] = {}
-            for key, job in plan.jobs.items():  # dependencies first
-                futures[key] = client.submit(_execute_after, str(cache), asdict(job), threads,
-                                             *(futures[d] for d in job.deps), key=f"{job.kind}-{job.key}",
-                                             pure=False, priority=priority[key])
-            jobs_of = {fut.key: plan.jobs[key] for key, fut in futures.items()}
-            for fut in dask_completed(list(futures.values())):
-                record(jobs_of[fut.key], fut.result())
+            _run_dask(plan, cache, client, tally)
         finally:
             if own_client:
                 client.close()
     elif executor == "local":
-        workers = max(1, workers)
-        threads = max(1, (os.cpu_count() or 1) // workers) if workers > 1 else None
-        children = plan.children()
-        waiting = {k: set(job.deps) for k, job in plan.jobs.items()}
-        order = {k: i for i, k in enumerate(plan.jobs)}
-        ready = [(-priority[k], order[k], k) for k in plan.jobs if not waiting[k]]
-        heapq.heapify(ready)
-        running: dict = {}
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            try:
-                while ready or running:
-                    while ready and len(running) < workers:
-                        key = heapq.heappop(ready)[2]
-                        running[pool.submit(execute_job, str(cache), asdict(plan.jobs[key]), threads)] = key
-                    finished, _ = wait(running, return_when=FIRST_COMPLETED)
-                    for fut in finished:
-                        key = running.pop(fut)
-                        record(plan.jobs[key], fut.result())
-                        for child in children[key]:
-                            waiting[child].discard(key)
-                            if not waiting[child]:
-                                heapq.heappush(ready, (-priority[child], order[child], child))
-            except BaseException:
-                kill_running()
-                pool.shutdown(wait=True, cancel_futures=True)
-                raise
+        _run_local(plan, cache, workers, tally)
     else:
         from plantbench.errors import InputError
 
         raise InputError(f"unknown executor {executor!r}; choose 'local' or 'dask'")
-    return results, stats
+    return tally.results, tally.stats

@@ -23,7 +23,7 @@ from pathlib import Path
 from plantbench.io.atomic import atomic_write, write_json
 from plantbench.paths import project_root
 from plantbench.runner.execute import ExecutionStats, execute_plan
-from plantbench.runner.plan import content_hash, make_plan
+from plantbench.runner.plan import Cell, Plan, content_hash, make_plan
 from plantbench.runner.worker import job_folder
 from plantbench.suites import Suite
 
@@ -117,8 +117,6 @@ def run_suite(
     ``dataset``: a frozen dataset of the suite (:mod:`plantbench.dataset`), verified file by file before any work
     (or the (folder, manifest) that :func:`plantbench.dataset.open_dataset` returned); its captures replace
     generating and capturing, and run.json records its manifest's sha256."""
-    import pandas as pd
-
     t0 = time.perf_counter()
     frozen = None
     if dataset is not None:
@@ -131,6 +129,24 @@ def run_suite(
     cache = out / "cache"
     run_dir = out / suite.name
     run_dir.mkdir(parents=True, exist_ok=True)
+    meta = _start_metadata(suite, method_names, frozen)
+    records, stats = execute_plan(plan, cache, workers=workers, executor=executor, scheduler=scheduler,
+                                  client=client, progress=progress)
+    cell_metrics = _read_cell_metrics(plan, records, cache)
+    rows = _result_rows(plan, records, cell_metrics, cache, run_dir / "logs")
+    _write_cells(plan, records, cache, run_dir)
+    table = _write_results(rows, run_dir)
+    seconds = time.perf_counter() - t0
+    meta.update(finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"), seconds=seconds,
+                counts={k: v for k, v in stats.items()}, cells=len(plan.cells),
+                failed_cells=sum(1 for c in plan.cells if c not in cell_metrics))
+    write_json(run_dir / "run.json", meta)
+    return RunResult(run_dir, table, stats, seconds)
+
+
+def _start_metadata(suite: Suite, method_names: list[str], frozen: tuple | None) -> dict:
+    """run.json as it stands before any job runs: :func:`run_metadata`, the start time, the oracle methods and the
+    frozen dataset (its folder, manifest sha256, and the code and CPU that made it)."""
     meta = run_metadata(suite, method_names)
     meta["started"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
     meta["oracles"] = oracle_methods(suite, method_names)
@@ -139,23 +155,33 @@ def run_suite(
 
         meta["dataset"] = {"path": str(frozen[0].resolve()), "manifest_sha256": manifest_sha256(frozen[0]),
                            "git_sha": frozen[1].git_sha, "llvm_target": frozen[1].llvm_target}
-    records, stats = execute_plan(plan, cache, workers=workers, executor=executor, scheduler=scheduler,
-                                  client=client, progress=progress)
+    return meta
 
-    rows = []
-    metric_names: set[str] = set()
+
+def _read_cell_metrics(plan: Plan, records: dict[str, dict], cache: Path) -> dict:
+    """{cell: its metrics.json} for every cell whose reconstruction and metrics jobs both succeeded."""
     cell_metrics = {}
     for cell in plan.cells:
-        rec = records[cell.recon_key]
-        m_rec = records[cell.metrics_key]
-        if rec["status"] == "ok" and m_rec["status"] == "ok":
-            values = json.loads((job_folder(cache, "metrics", cell.metrics_key) / "metrics.json").read_text())
-            cell_metrics[cell] = values
-            metric_names.update(values)
-    logs = run_dir / "logs"
+        if records[cell.recon_key]["status"] == "ok" and records[cell.metrics_key]["status"] == "ok":
+            path = job_folder(cache, "metrics", cell.metrics_key) / "metrics.json"
+            cell_metrics[cell] = json.loads(path.read_text())
+    return cell_metrics
+
+
+def _sweep(cell: Cell) -> str | None:
+    """A cell's sweep value as the tables write it (None outside a sweep)."""
+    return None if cell.sweep_value is None else str(cell.sweep_value)
+
+
+def _result_rows(plan: Plan, records: dict[str, dict], cell_metrics: dict, cache: Path, logs: Path) -> list[dict]:
+    """The rows of the tidy results table: per successful cell its metrics (by name) and runtime_s; per failed cell
+    every metric any cell has (or 'score' when none has), valued None with the failed job's status, and a link to
+    that job's log in ``logs``."""
+    metric_names = sorted(set().union(*cell_metrics.values()))
+    rows = []
     for cell in plan.cells:
         base = {"case": cell.case, "species": cell.species, "family": cell.family, "seed": cell.seed,
-                "method": cell.method, "sweep": None if cell.sweep_value is None else str(cell.sweep_value)}
+                "method": cell.method, "sweep": _sweep(cell)}
         rec = records[cell.recon_key]
         if cell in cell_metrics:
             for name, value in sorted(cell_metrics[cell].items()):
@@ -164,33 +190,48 @@ def run_suite(
             continue
         status = rec["status"] if rec["status"] != "ok" else "failed"  # ok recon, failed metrics
         failed_key, kind = (cell.recon_key, "method") if rec["status"] != "ok" else (cell.metrics_key, "metrics")
-        for name in sorted(metric_names) or ["score"]:
+        for name in metric_names or ["score"]:
             rows.append({**base, "metric": name, "value": None, "status": status})
         log = job_folder(cache, kind, failed_key) / "job.log"
-        if log.exists():
-            logs.mkdir(exist_ok=True)
-            link = logs / f"{_slug(cell.case)}.{_slug(cell.method)}.log"
-            if link.is_symlink() or link.exists():
-                link.unlink()
-            link.symlink_to(os.path.relpath(log, logs))
-    # where each cell's inputs and outputs are (relative to the run folder): the report draws from them
+        _link_log(log, logs / f"{_slug(cell.case)}.{_slug(cell.method)}.log")
+    return rows
+
+
+def _link_log(log: Path, link: Path) -> None:
+    """Point ``link`` (relative) at a failed job's ``log``, replacing an older link; nothing if there is no log."""
+    if not log.exists():
+        return
+    link.parent.mkdir(exist_ok=True)
+    if link.is_symlink() or link.exists():
+        link.unlink()
+    link.symlink_to(os.path.relpath(log, link.parent))
+
+
+def _write_cells(plan: Plan, records: dict[str, dict], cache: Path, run_dir: Path) -> None:
+    """cells.json: where each cell's inputs and outputs are (relative to the run folder); the report draws from
+    them."""
+
+    def status(c: Cell) -> str:
+        recon = records[c.recon_key]["status"]
+        return recon if recon != "ok" else records[c.metrics_key]["status"]
+
     write_json(run_dir / "cells.json", [
-        {"case": c.case, "species": c.species, "family": c.family, "method": c.method,
-         "sweep": None if c.sweep_value is None else str(c.sweep_value),
+        {"case": c.case, "species": c.species, "family": c.family, "method": c.method, "sweep": _sweep(c),
          "capture": os.path.relpath(job_folder(cache, "capture", c.case_key), run_dir),
          "recon": os.path.relpath(job_folder(cache, "method", c.recon_key), run_dir),
-         "status": records[c.recon_key]["status"] if records[c.recon_key]["status"] != "ok"
-         else records[c.metrics_key]["status"]}
+         "status": status(c)}
         for c in plan.cells])
+
+
+def _write_results(rows: list[dict], run_dir: Path):
+    """The results table (a pandas DataFrame of :data:`RESULT_COLUMNS`), written as results.parquet and
+    results.csv."""
+    import pandas as pd
+
     table = pd.DataFrame(rows, columns=RESULT_COLUMNS)
     table["value"] = table["value"].astype(float)
     with atomic_write(run_dir / "results.parquet") as fh:
         table.to_parquet(fh, index=False)
     with atomic_write(run_dir / "results.csv", "w") as fh:
         table.to_csv(fh, index=False)
-    seconds = time.perf_counter() - t0
-    meta.update(finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"), seconds=seconds,
-                counts={k: v for k, v in stats.items()}, cells=len(plan.cells),
-                failed_cells=sum(1 for c in plan.cells if c not in cell_metrics))
-    write_json(run_dir / "run.json", meta)
-    return RunResult(run_dir, table, stats, seconds)
+    return table

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from plantbench.geometry.vectors import unit
 from plantbench.plant import Leaf, Skeleton, TriMesh
-from reference_impl.common.skeleton_ops import unit
 
 __all__ = ["branch_mesh", "leaf_frames", "quad_leaves", "bezier_leaves"]
 

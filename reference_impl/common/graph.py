@@ -5,7 +5,8 @@
 - :func:`bridge_components`: join every connected component to the rest with its shortest inter-component edge
   (Boruvka rounds, so at most ceil(log2 k) rounds for k components).
 - :func:`shortest_path_tree`: multi-source Dijkstra (scipy.sparse.csgraph), the nearest root claims each vertex.
-- :func:`tree_levels`, :func:`subtree_sums`, :func:`subtree_lengths`: vectorised passes over a parent array.
+- :func:`subtree_sums`, :func:`subtree_lengths`, :func:`edge_lengths`, :func:`children_csr`: vectorised passes over a
+  parent array (depths and depth levels: :mod:`plantbench.geometry.vectors`).
 
 A "tree" here is a parent array (``-1`` for roots), as in :class:`plantbench.plant.Skeleton`.
 """
@@ -18,6 +19,7 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from plantbench.errors import InputError
+from plantbench.geometry import vectors
 
 __all__ = [
     "voxel_downsample",
@@ -27,8 +29,6 @@ __all__ = [
     "components",
     "bridge_components",
     "shortest_path_tree",
-    "tree_levels",
-    "depths",
     "subtree_sums",
     "subtree_lengths",
     "edge_lengths",
@@ -196,35 +196,10 @@ def shortest_path_tree(graph: sp.csr_matrix, roots: np.ndarray) -> tuple[np.ndar
     return dist, parents, source.astype(np.int64)
 
 
-def depths(parents: np.ndarray) -> np.ndarray:
-    """(n,) number of edges to the root (pointer doubling; -1 for nodes on a cycle, which a forest has none of)."""
-    parents = np.asarray(parents, np.int64)
-    n = len(parents)
-    if n == 0:
-        return np.zeros(0, np.int64)
-    is_root = parents < 0
-    anc = np.where(is_root, np.arange(n), parents)
-    depth = np.where(is_root, 0, 1).astype(np.int64)
-    for _ in range(int(np.ceil(np.log2(n))) + 2):
-        depth = depth + np.where(is_root[anc], 0, depth[anc])
-        anc = anc[anc]
-    return np.where(is_root[anc], depth, -1)
-
-
-def tree_levels(parents: np.ndarray) -> list[np.ndarray]:
-    """Node indices grouped by depth, roots first."""
-    dep = depths(parents)
-    if len(dep) == 0:
-        return []
-    order = np.argsort(dep, kind="stable")
-    order = order[dep[order] >= 0]
-    return np.split(order, np.flatnonzero(np.diff(dep[order])) + 1)
-
-
 def subtree_sums(values: np.ndarray, parents: np.ndarray, levels: list[np.ndarray] | None = None) -> np.ndarray:
     """(n,) sum of ``values`` over each node's subtree (the node included): one pass from the deepest level up."""
     total = np.asarray(values, np.float64).copy()
-    for idx in reversed(levels if levels is not None else tree_levels(parents)):
+    for idx in reversed(levels if levels is not None else vectors.levels(parents)):
         c = idx[parents[idx] >= 0]
         np.add.at(total, parents[c], total[c])
     return total

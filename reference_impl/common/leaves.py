@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from reference_impl.common.skeleton_ops import unit
+from plantbench.geometry.vectors import unit
 
 __all__ = ["sample_edges", "skeleton_distance", "foliage_cells"]
 

@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from reference_impl.common.graph import children_csr, subtree_lengths, tree_levels
+from plantbench.geometry import vectors
+from reference_impl.common.graph import children_csr, subtree_lengths
 
 __all__ = ["pipe_model_radii", "wbe_murray_radii", "murray_angle", "fit_circle", "fit_trunk_radius"]
 
@@ -28,7 +29,7 @@ def pipe_model_radii(weights: np.ndarray, parents: np.ndarray, root_radius: floa
     Children are never thicker than their parents.
     """
     parents = np.asarray(parents, np.int64)
-    levels = tree_levels(parents)
+    levels = vectors.levels(parents)
     root_of = np.arange(len(parents))
     for idx in levels:
         c = idx[parents[idx] >= 0]
@@ -55,7 +56,7 @@ def wbe_murray_radii(positions: np.ndarray, parents: np.ndarray, root_radius: fl
     parents = np.asarray(parents, np.int64)
     n = len(parents)
     sup = np.maximum(subtree_lengths(positions, parents), 1e-12)
-    ptr, kids = children_csr(parents)
+    ptr, _ = children_csr(parents)
     nkids = np.diff(ptr)
     roots = np.flatnonzero(parents < 0)
     r = np.zeros(n)
@@ -64,13 +65,12 @@ def wbe_murray_radii(positions: np.ndarray, parents: np.ndarray, root_radius: fl
     child = np.flatnonzero(parents >= 0)
     sib_sum = np.zeros(n)
     np.add.at(sib_sum, parents[child], sup[child])
-    for idx in tree_levels(parents)[1:]:
+    for idx in vectors.levels(parents)[1:]:
         p = parents[idx]
         single = nkids[p] == 1
         ratio_single = np.minimum(sup[idx] / sup[p], 1.0) ** wbe_exponent        # Eq. 4
         ratio_split = (sup[idx] / sib_sum[p]) ** (1.0 / murray_exponent)          # Eq. 5
         r[idx] = np.maximum(r[p] * np.where(single, ratio_single, ratio_split), min_radius)
-    del kids
     return r
 
 

@@ -3,8 +3,8 @@
 - :func:`plant_groups`: separate plants in one cloud (connected occupied voxels).
 - :func:`find_roots`: the lowest vertex of each central connected cluster of the lowest slab (AdTree uses the bottom
   2 % of the height; Livny allows several roots, which covers multi-stem shrubs): one root per stem base.
-- :func:`stem_radius`: the trunk radius of a stem from a cylinder fit (plantbench.common.radii.fit_trunk_radius)
-  around the first part of the skeleton from that root.
+- :func:`stem_radius`: the trunk radius of a stem from a cylinder fit (reference_impl.common.radii.fit_trunk_radius)
+  around the first part of the skeleton from that root; :func:`stem_radii` for every stem.
 - :func:`anchor_roots`: add a node on the ground plane under each root, so skeletons start on the ground like the
   ground truth does (ground removal trimmed the stem's lowest centimetres).
 """
@@ -17,7 +17,7 @@ from scipy.sparse import csgraph
 
 from reference_impl.common.radii import fit_trunk_radius
 
-__all__ = ["plant_groups", "find_roots", "stem_radius", "anchor_roots"]
+__all__ = ["plant_groups", "find_roots", "stem_radius", "stem_radii", "anchor_roots"]
 
 
 def plant_groups(positions: np.ndarray, cell: float) -> np.ndarray:
@@ -113,7 +113,20 @@ def stem_radius(points: np.ndarray, base: np.ndarray, direction: np.ndarray, *, 
     return float(fallback), np.asarray(base, float)
 
 
+def stem_radii(points: np.ndarray, roots: np.ndarray, axes: np.ndarray, *, offset: float, length: float,
+               max_radius: float, fallback: float, min_radius: float) -> np.ndarray:
+    """(k,) trunk radius of each stem, at least ``min_radius``: :func:`stem_radius` fitted from ``offset`` below
+    the root along its stem axis. roots, axes : (k, 3) root positions and unit stem axes."""
+    out = []
+    for root, axis in zip(roots, axes, strict=True):
+        rad, _ = stem_radius(points, root - axis * offset, axis, length=length, max_radius=max_radius,
+                             fallback=fallback)
+        out.append(max(rad, min_radius))
+    return np.asarray(out)
+
+
 def _perp(v: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """The component of ``v`` perpendicular to ``axis`` (its projection on the plane across the axis)."""
     a = np.asarray(axis, float) / max(np.linalg.norm(axis), 1e-12)
     return v - (v @ a) * a
 

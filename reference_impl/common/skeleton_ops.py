@@ -7,6 +7,7 @@
   (resampling between Livny passes).
 - :func:`merge_siblings`: merge sibling children closer than ``max_angle`` in direction with edge-length ratio in
   [1/2, 2] (AdTree's sibling merge, 25 deg), the new node at the weight-averaged position.
+- :func:`remove_chain_nodes`: drop single-child nodes that a rule accepts, in rounds of non-adjacent nodes.
 - :func:`remove_degree2`: drop single-child nodes lying within ``tol`` of the segment joining their parent and child.
 - :func:`prune_short_tips`: drop terminal chains shorter than a length (spur removal).
 - :func:`hermite_smooth`: Xu et al. 2007 section 4.4: a sharp transition A -> O -> B is replaced by a cubic Hermite
@@ -19,15 +20,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from reference_impl.common.graph import children_csr, depths, edge_lengths, subtree_lengths, tree_levels
+from plantbench.geometry.vectors import depths, levels, unit
+from reference_impl.common.graph import children_csr, edge_lengths, subtree_lengths
 
-__all__ = ["remove_nodes", "prune_by_ratio", "spatial_merge", "merge_siblings", "remove_degree2",
-           "prune_short_tips", "hermite_smooth", "unit", "turn_angles", "branch_orders"]
-
-
-def unit(v: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return v / np.where(n > 1e-15, n, 1.0)
+__all__ = ["remove_nodes", "prune_by_ratio", "spatial_merge", "merge_siblings", "remove_chain_nodes",
+           "remove_degree2", "prune_short_tips", "hermite_smooth", "turn_angles", "branch_orders"]
 
 
 def remove_nodes(parents: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -68,7 +65,7 @@ def prune_by_ratio(positions: np.ndarray, parents: np.ndarray, ratio: float) -> 
     wp = w[parents[has]]
     ok[has] = (w[has] + inc[has]) >= ratio * np.maximum(wp, 1e-15)
     keep = ok.copy()
-    for idx in tree_levels(parents):
+    for idx in levels(parents):
         c = idx[parents[idx] >= 0]
         keep[c] &= keep[parents[c]]
     return keep
@@ -86,7 +83,6 @@ def spatial_merge(positions: np.ndarray, parents: np.ndarray, mass: np.ndarray, 
     """
     from reference_impl.common.graph import shortest_path_tree
 
-    n = len(parents)
     key = np.floor((positions - positions.min(0)) / delta).astype(np.int64)
     _, index = np.unique(key, axis=0, return_inverse=True)
     index = index.ravel()
@@ -109,7 +105,6 @@ def spatial_merge(positions: np.ndarray, parents: np.ndarray, mass: np.ndarray, 
     roots = np.unique(index[np.flatnonzero(parents < 0)])
     dist, par, _ = shortest_path_tree(g, roots)
     par[~np.isfinite(dist)] = -1
-    del n
     return pos, par, w, index
 
 
@@ -166,43 +161,54 @@ def merge_siblings(positions: np.ndarray, parents: np.ndarray, weights: np.ndarr
     return pos[~merged], new_par, index
 
 
-def remove_degree2(positions: np.ndarray, parents: np.ndarray, tol: np.ndarray, *, max_rounds: int = 64
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Drop single-child nodes closer than ``tol`` (per node) to the segment parent-child, in rounds of
-    non-adjacent nodes (alternating depth parity) until nothing changes. Returns ``keep (n,)`` and new parents.
+def remove_chain_nodes(parents: np.ndarray, removable, *, max_rounds: int = 64) -> tuple[np.ndarray, np.ndarray]:
+    """Drop single-child nodes that ``removable`` accepts, each child reattached to the node's parent.
+
+    ``removable(node, parent, child)`` takes (k,) index arrays of candidates, their parents and their single children
+    and returns a (k,) bool mask. Rounds alternate depth parity, so that neighbours are never removed together and a
+    straight chain does not vanish at once; they stop when no node has a single child, after two rounds without a
+    removal, or after ``max_rounds``. Returns ``keep (n,)`` and the new parents over the kept nodes.
     """
     par = np.array(parents, np.int64, copy=True)
     n = len(par)
     alive = np.ones(n, bool)
-    tol = np.broadcast_to(np.asarray(tol, float), (n,))
     quiet = 0
     for rnd in range(max_rounds):
         nk = np.bincount(par[alive & (par >= 0)], minlength=n)
         cand = np.flatnonzero(alive & (par >= 0) & (nk == 1))
         if len(cand) == 0:
             break
-        # the single child of each candidate
         child_of = np.full(n, -1)
         ch = np.flatnonzero(alive & (par >= 0))
         child_of[par[ch]] = ch
-        c = child_of[cand]
-        a, b = positions[par[cand]], positions[c]
-        ab = b - a
-        t = np.clip(np.sum((positions[cand] - a) * ab, 1) / np.maximum(np.sum(ab * ab, 1), 1e-300), 0, 1)
-        dev = np.linalg.norm(positions[cand] - (a + t[:, None] * ab), axis=1)
         dep = depths(np.where(alive, par, -1))
-        rem = cand[(dev < tol[cand]) & (dep[cand] % 2 == rnd % 2)]
+        rem = cand[removable(cand, par[cand], child_of[cand]) & (dep[cand] % 2 == rnd % 2)]
         if len(rem) == 0:
             quiet += 1
             if quiet >= 2:
                 break
             continue
         quiet = 0
-        c = child_of[rem]
-        par[c] = par[rem]
+        par[child_of[rem]] = par[rem]
         alive[rem] = False
     new_par, _ = remove_nodes(np.where(alive, par, -1), alive)
     return alive, new_par
+
+
+def remove_degree2(positions: np.ndarray, parents: np.ndarray, tol: np.ndarray, *, max_rounds: int = 64
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Drop single-child nodes closer than ``tol`` (per node) to the segment parent-child, in rounds of
+    non-adjacent nodes (:func:`remove_chain_nodes`). Returns ``keep (n,)`` and new parents.
+    """
+    tol = np.broadcast_to(np.asarray(tol, float), (len(parents),))
+
+    def near_segment(v: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        pa, pb = positions[a], positions[b]
+        ab = pb - pa
+        t = np.clip(np.sum((positions[v] - pa) * ab, 1) / np.maximum(np.sum(ab * ab, 1), 1e-300), 0, 1)
+        return np.linalg.norm(positions[v] - (pa + t[:, None] * ab), axis=1) < tol[v]
+
+    return remove_chain_nodes(parents, near_segment, max_rounds=max_rounds)
 
 
 def prune_short_tips(positions: np.ndarray, parents: np.ndarray, min_length: float, *, rounds: int = 2
@@ -220,14 +226,12 @@ def prune_short_tips(positions: np.ndarray, parents: np.ndarray, min_length: flo
         single_len = np.where(keep, inc, 0.0)
         tip_chain = keep & (nk == 0)
         chain_len = np.where(tip_chain, inc, 0.0)
-        chain_top = np.where(tip_chain, np.arange(n), -1)
-        for idx in reversed(tree_levels(live_par)):
+        for idx in reversed(levels(live_par)):
             idx = idx[tip_chain[idx] & (live_par[idx] >= 0)]
             p = live_par[idx]
             ext = nk[p] == 1
             tip_chain[p[ext]] = True
             chain_len[p[ext]] = chain_len[idx[ext]] + single_len[p[ext]]
-        del chain_top
         # a chain top: tip-chain node whose parent is a junction (>= 2 children)
         top = np.flatnonzero(tip_chain & (live_par >= 0))
         top = top[nk[live_par[top]] >= 2]
@@ -236,7 +240,7 @@ def prune_short_tips(positions: np.ndarray, parents: np.ndarray, min_length: flo
             break
         drop = np.zeros(n, bool)
         drop[short] = True
-        for idx in tree_levels(live_par):
+        for idx in levels(live_par):
             c = idx[live_par[idx] >= 0]
             drop[c] |= drop[live_par[c]]
         keep &= ~drop
@@ -276,7 +280,7 @@ def hermite_smooth(positions: np.ndarray, parents: np.ndarray, *, min_angle_deg:
     children = [list(kids[ptr[v]:ptr[v + 1]]) for v in range(n0)]
     removed = np.zeros(n0, bool)
     cos_min = np.cos(np.radians(min_angle_deg))
-    order = np.concatenate(tree_levels(np.asarray(parents, np.int64))) if n0 else np.zeros(0, np.int64)
+    order = np.concatenate(levels(np.asarray(parents, np.int64))) if n0 else np.zeros(0, np.int64)
     for o in order:
         a = par[o]
         if a < 0 or not children[o]:
@@ -329,7 +333,7 @@ def branch_orders(parents: np.ndarray, radii: np.ndarray) -> np.ndarray:
 
     main = main_child_mask(parents, radii)
     order = np.zeros(len(parents), np.int64)
-    for idx in tree_levels(parents):
+    for idx in levels(parents):
         c = idx[parents[idx] >= 0]
         order[c] = order[parents[c]] + (~main[c]).astype(np.int64)
     return order

@@ -25,7 +25,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from plantbench.errors import InputError
+from plantbench.io.atomic import write_json
 from plantbench.io.plantio import write_reconstruction
+from plantbench.schemas import jsonable
 from plantbench.seeding import rng as seeded_rng
 from reference_impl.common.inputs import load_points
 from reference_impl.guo.params import GENERIC_PRIOR, GuoParams, SpeciesPrior, params_from_options, prior_from_hint
@@ -100,21 +102,5 @@ class Guo:
         if leaf_stats is not None:
             result.info["leaf_segmentation"] = leaf_stats
         write_reconstruction(out_dir, result.skeleton, mesh=result.mesh, leaves=result.leaves)
-        from plantbench.io.atomic import write_json
-
-        write_json(Path(out_dir) / "guo.json", _jsonable(result.info | {"species": prior.name}))
+        write_json(Path(out_dir) / "guo.json", jsonable(result.info | {"species": prior.name}, digits=9))
         return result
-
-
-def _jsonable(obj):
-    import numpy as np
-
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, float):
-        return round(obj, 9)
-    return obj

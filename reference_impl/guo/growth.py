@@ -40,8 +40,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from plantbench.geometry.perception import assign_markers as nearest_cone
+from plantbench.geometry.vectors import levels_of, perpendicular, rotate, unit
 from reference_impl.common.graph import subtree_sums
-from reference_impl.common.skeleton_ops import unit
 from reference_impl.guo.params import GuoParams, SpeciesPrior
 
 __all__ = ["logistic_height", "growth_units", "influence_distance", "allometric_radii", "assign_markers",
@@ -106,28 +107,12 @@ def assign_markers(markers: np.ndarray, bud_pos: np.ndarray, bud_dir: np.ndarray
     its position) the apical bud wins (apical dominance) [S: Palubicki's rule leaves ties open].
 
     markers : (m, 3); bud_pos : (b, 3); bud_dir : (b, 3) unit cone axes; apical : (b,) bool. Only the
-    ``neighbours`` closest buds of each marker are examined.
+    ``neighbours`` closest buds of each marker are examined (:func:`plantbench.geometry.perception.assign_markers`,
+    a lateral bud's distance lengthened by 1e-9 radius).
     """
-    nb = len(bud_pos)
-    out = np.full(len(markers), -1, np.int64)
-    if nb == 0 or len(markers) == 0:
-        return out
-    kk = min(neighbours, nb)
-    dist, ind = cKDTree(bud_pos).query(markers, k=kk, distance_upper_bound=radius)
-    if kk == 1:
-        dist, ind = dist[:, None], ind[:, None]
-    rows = np.flatnonzero(np.isfinite(dist[:, 0]))
-    dist, ind = dist[rows], ind[rows]
-    valid = np.isfinite(dist) & (dist > 1e-12)
-    safe = np.where(valid, ind, 0)
-    vec = markers[rows, None, :] - bud_pos[safe]
-    cosang = np.sum(vec * bud_dir[safe], axis=2) / np.where(valid, dist, 1.0)
-    ok = valid & (cosang >= cos_half_angle)
-    key = np.where(ok, dist + np.where(apical[safe], 0.0, 1e-9 * radius), np.inf)
-    best = np.argmin(key, axis=1)
-    has = ok[np.arange(len(rows)), best]
-    out[rows[has]] = safe[has, best[has]]
-    return out
+    penalty = np.where(np.asarray(apical, bool), 0.0, 1e-9 * radius)
+    return nearest_cone(markers, bud_pos, bud_dir, radius=radius, cos_half_angle=cos_half_angle,
+                        neighbours=neighbours, penalty=penalty)
 
 
 def growing_buds(q: np.ndarray, apical: np.ndarray, *, alpha: float, min_share: float) -> np.ndarray:
@@ -202,175 +187,233 @@ class _Nodes:
         self.n += k
         return idx
 
+    def alive_tree(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The alive nodes renumbered in order (parents still precede children): positions, parents, lateral flags
+        and depths."""
+        n = self.n
+        keep = np.flatnonzero(self.alive[:n])
+        remap = np.full(n, -1, np.int64)
+        remap[keep] = np.arange(len(keep))
+        par = self.parent[keep]
+        parents = np.where(par >= 0, remap[np.maximum(par, 0)], -1)
+        return self.pos[keep], parents, self.lateral[keep], self.depth[keep]
 
-def _perpendicular(d: np.ndarray) -> np.ndarray:
-    a = np.where(np.abs(d[:, [0]]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    return unit(np.cross(d, a))
+
+@dataclass(frozen=True)
+class _Rules:
+    """Constants of one growth run, from the species prior, the parameters and the plant's size."""
+
+    ell: float
+    """Internode length l, metres."""
+    k_internodes: float
+    """K: the plant's height in internodes (H_max of Eq. 6)."""
+    psi: float
+    """Branching angle, radians."""
+    phi: float
+    """Roll angle (phyllotaxy), radians."""
+    cos_half: float
+    """Cosine of half the perception cone's opening theta."""
+    tropism: np.ndarray
+    """(3,) V_tropism of Eq. 9."""
+    widen_limit: float
+    """Largest perception radius of a cycle that widens it (the plant's size), metres."""
+
+    @classmethod
+    def of(cls, markers: np.ndarray, height: float, prior: SpeciesPrior, params: GuoParams) -> _Rules:
+        widen_limit = max(float(height), float(np.ptp(markers, axis=0).max()) if len(markers) else 0.0)
+        return cls(ell=prior.internode_length, k_internodes=height / prior.internode_length,
+                   psi=np.radians(prior.branching_angle), phi=np.radians(prior.roll_angle),
+                   cos_half=float(np.cos(np.radians(params.perception_angle) / 2)),
+                   tropism=np.asarray(params.tropism, float), widen_limit=widen_limit)
 
 
-def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
-    """Rodrigues rotation of v (n, 3) about unit axes (n, 3)."""
-    c, s = np.cos(angle), np.sin(angle)
-    return v * c + np.cross(axis, v) * s + axis * np.sum(axis * v, 1, keepdims=True) * (1 - c)
+def _seed(root_positions: np.ndarray) -> _Nodes:
+    """L-system 1's axiom: a node at each root whose apical bud heads up (roll reference across Z)."""
+    k = len(root_positions)
+    up = np.tile([0.0, 0.0, 1.0], (k, 1))
+    nodes = _Nodes()
+    nodes.add(pos=np.asarray(root_positions, float), head=up, ref=perpendicular(up), latdir=up, parent=np.full(k, -1),
+              has_main=np.zeros(k, bool), has_lat=np.zeros(k, bool), lateral=np.zeros(k, bool),
+              birth=np.zeros(k, np.int64), depth=np.zeros(k, np.int64), lat_ok=np.zeros(k, bool))
+    return nodes
 
 
-def node_levels(depth: np.ndarray) -> list[np.ndarray]:
-    order = np.argsort(depth, kind="stable")
-    return np.split(order, np.flatnonzero(np.diff(depth[order])) + 1)
+def _occupy(markers: np.ndarray, weights: np.ndarray, nodes: _Nodes, radii: np.ndarray, d_k: float,
+            branch_radius: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Occupancy: the markers (and their weights) left after removing those within the kill distance ``d_k`` of an
+    alive node, plus the node's radius (``radii``, per node) with ``branch_radius``."""
+    if len(markers) == 0:
+        return markers, weights
+    alive_idx = np.flatnonzero(nodes.alive[: nodes.n])
+    extra = radii[alive_idx] if branch_radius else np.zeros(len(alive_idx))
+    kk = min(4, len(alive_idx))
+    dist, j = cKDTree(nodes.pos[alive_idx]).query(markers, k=kk, distance_upper_bound=d_k + float(extra.max()))
+    if kk == 1:
+        dist, j = dist[:, None], j[:, None]
+    ok = np.isfinite(dist)
+    reach = d_k + extra[np.where(ok, j, 0)]
+    dead = np.any(ok & (dist < reach), axis=1)
+    return markers[~dead], weights[~dead]
+
+
+def _buds(nodes: _Nodes, t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The buds of cycle ``t``: the apical buds, then the lateral buds of the nodes made in earlier cycles. Returns
+    each bud's node, whether it is apical and its direction."""
+    n = nodes.n
+    alive = nodes.alive[:n]
+    api = np.flatnonzero(alive & ~nodes.has_main[:n])
+    lat = np.flatnonzero(alive & ~nodes.has_lat[:n] & nodes.lat_ok[:n] & (nodes.birth[:n] < t))
+    bud_node = np.concatenate([api, lat])
+    is_api = np.arange(len(bud_node)) < len(api)
+    return bud_node, is_api, np.concatenate([nodes.head[api], nodes.latdir[lat]])
+
+
+def _perceive(markers: np.ndarray, bud_pos: np.ndarray, bud_dir: np.ndarray, is_api: np.ndarray, d_i: float,
+              rules: _Rules, params: GuoParams) -> tuple[np.ndarray, float]:
+    """Each marker's bud (:func:`assign_markers`, -1 for none) and the perception radius used: ``d_i``, doubled while
+    no bud perceives a marker (a gap in the cloud: occluded or unreconstructed parts), at most ``max_widen`` times
+    and up to the plant's size."""
+    d_use = d_i
+    for _ in range(params.max_widen + 1):
+        owner = assign_markers(markers, bud_pos, bud_dir, is_api, radius=d_use, cos_half_angle=rules.cos_half,
+                               neighbours=params.neighbours)
+        if np.any(owner >= 0) or d_use >= rules.widen_limit:
+            break
+        d_use = min(2.0 * d_use, rules.widen_limit)
+    return owner, d_use
+
+
+def _shoots(markers: np.ndarray, weights: np.ndarray, owner: np.ndarray, bud_pos: np.ndarray, bud_dir: np.ndarray,
+            is_api: np.ndarray, rho: float, d_use: float, rules: _Rules, params: GuoParams
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bud fate and Eq. 9 for buds fed by ``markers`` (``owner``: each marker's bud, weights Eq. 8).
+
+    Returns the growing buds (:func:`growing_buds`), their shoots' unit directions and their numbers of metamers:
+    rho_t (or enough to cross the widened radius ``d_use``), but no farther than the weighted centroid of the bud's
+    markers, and at least one.
+    """
+    nb = len(bud_pos)
+    vec = markers - bud_pos[owner]
+    u = unit(vec)
+    wsum = np.bincount(owner, weights=weights, minlength=nb)
+    vopt = np.stack([np.bincount(owner, weights=weights * u[:, c], minlength=nb) for c in range(3)], 1)
+    cen = np.stack([np.bincount(owner, weights=weights * vec[:, c], minlength=nb) for c in range(3)], 1)
+    lit = np.flatnonzero(growing_buds(wsum, is_api, alpha=params.bh_alpha, min_share=params.lateral_vigour))
+    vopt = vopt[lit] / wsum[lit, None]
+    reach = np.linalg.norm(cen[lit] / wsum[lit, None], axis=1)
+    v = unit(bud_dir[lit] + params.alpha * vopt + params.beta * rules.tropism)
+    nmet = np.minimum(np.round(max(rho, d_use / rules.ell)), np.round(reach / rules.ell))
+    return lit, v, np.clip(nmet, 1, None).astype(np.int64)
+
+
+def _extend(nodes: _Nodes, bud_node: np.ndarray, lateral: np.ndarray, v: np.ndarray, nmet: np.ndarray, t: int,
+            rules: _Rules) -> None:
+    """L-system 1's production: from each growing bud (its node, ``lateral`` for a lateral bud) a shoot of ``nmet``
+    metamers along ``v``, one internode each, the lateral bud of each rolled by phi about the shoot and set at the
+    branching angle psi."""
+    # roll reference of each shoot: an axis continues its own, a new lateral axis starts across its parent
+    ref = np.where(lateral[:, None], np.cross(v, nodes.head[bud_node]), nodes.ref[bud_node])
+    prev = bud_node.copy()
+    depth = nodes.depth[bud_node]
+    for step in range(int(nmet.max())):
+        act = np.flatnonzero(nmet > step)
+        h = v[act]
+        r0 = ref[act] - np.sum(ref[act] * h, 1, keepdims=True) * h
+        bad = np.linalg.norm(r0, axis=1) < 1e-9
+        r0[bad] = perpendicular(h[bad])
+        r0 = rotate(unit(r0), h, rules.phi)
+        ldir = unit(np.cos(rules.psi) * h + np.sin(rules.psi) * r0)
+        first = step == 0
+        new = nodes.add(pos=nodes.pos[prev[act]] + rules.ell * h, head=h, ref=r0, latdir=ldir, parent=prev[act],
+                        has_main=False, has_lat=False, lateral=lateral[act] & first,
+                        birth=np.full(len(act), t, np.int64), depth=depth[act] + step + 1, lat_ok=True)
+        if first:
+            nodes.has_lat[prev[act][lateral[act]]] = True
+            nodes.has_main[prev[act][~lateral[act]]] = True
+        else:
+            nodes.has_main[prev[act]] = True
+        prev[act] = new
+        ref[act] = r0
+
+
+def _shed(nodes: _Nodes, radii: np.ndarray, levels: list[np.ndarray], t: int, shed_radius: float,
+          shed_age: int) -> int:
+    """Shed (mark dead) the lateral branches thinner than ``shed_radius`` at their base whose subtree has not grown
+    for ``shed_age`` cycles; returns the number of nodes shed. A shed lateral's bud is spent: the parent does not
+    regrow it."""
+    n = nodes.n
+    par = nodes.parent[:n]
+    alive = nodes.alive[:n]
+    newest = nodes.birth[:n].astype(np.int64).copy()  # the latest birth cycle in each node's subtree
+    newest[~alive] = -1
+    for idx in reversed(levels):
+        c = idx[par[idx] >= 0]
+        np.maximum.at(newest, par[c], newest[c])
+    cut = alive & nodes.lateral[:n] & (radii < shed_radius) & (newest <= t - shed_age)
+    if not cut.any():
+        return 0
+    gone = cut.copy()
+    for idx in levels:
+        c = idx[par[idx] >= 0]
+        gone[c] |= gone[par[c]]
+    gone &= alive
+    nodes.alive[:n] &= ~gone
+    return int(gone.sum())
 
 
 def grow(markers: np.ndarray, weights: np.ndarray, root_positions: np.ndarray, root_axes: np.ndarray,
          root_radii: np.ndarray, height: float, prior: SpeciesPrior, params: GuoParams) -> GrowthOutput:
     """Grow one stem per root towards the markers.
 
-    markers : (m, 3) float; weights : (m,) float > 0 (Eq. 8); root_positions, root_axes : (k, 3) (axes are used for
-    the roll frame only: every seed heads up, as in L-system 1); root_radii : (k,) trunk radii (Eq. 5 anchor);
-    height : plant height (H_max = K l), metres.
-    """
-    p = params
-    ell = prior.internode_length
-    k_int = height / ell
-    psi = np.radians(prior.branching_angle)
-    phi = np.radians(prior.roll_angle)
-    cos_half = float(np.cos(np.radians(p.perception_angle) / 2))
-    trop = np.asarray(p.tropism, float)
-    shed_radius = params.shed_radius * prior.tip_radius
-    min_radius = 0.5 * prior.tip_radius
-    k = len(root_positions)
-    widen_limit = max(float(height), float(np.ptp(markers, axis=0).max()) if len(markers) else 0.0)
+    markers : (m, 3) float; weights : (m,) float > 0 (Eq. 8); root_positions, root_axes : (k, 3) (the axes are not
+    used: every seed heads up, as in L-system 1); root_radii : (k,) trunk radii (Eq. 5 anchor); height : plant height
+    (H_max = K l), metres.
 
-    nodes = _Nodes()
-    up = np.tile([0.0, 0.0, 1.0], (k, 1))
-    ref0 = _perpendicular(up)
-    nodes.add(pos=np.asarray(root_positions, float), head=up, ref=ref0, latdir=up, parent=np.full(k, -1),
-              has_main=np.zeros(k, bool), has_lat=np.zeros(k, bool), lateral=np.zeros(k, bool),
-              birth=np.zeros(k, np.int64), depth=np.zeros(k, np.int64), lat_ok=np.zeros(k, bool))
+    Each cycle t: d_i from Eq. 6-7 (:func:`influence_distance`); occupancy removes the markers within d_k of the
+    nodes; every bud perceives its markers (the radius widened across gaps); the buds that bud fate lets grow emit
+    their shoots (Eq. 9); then the radii follow Eq. 5 and thin branches that stopped growing are shed. Growth stops
+    when no marker or no bud is left, when no bud perceives a marker, before the skeleton exceeds ``max_nodes`` or
+    after ``max_iterations`` cycles.
+    """
+    rules = _Rules.of(markers, height, prior, params)
+    shed_radius = params.shed_radius * prior.tip_radius
+    nodes = _seed(root_positions)
     mk = np.asarray(markers, float)
     mw = np.asarray(weights, float)
     history: list[dict] = []
     shed_total = 0
     radii = np.asarray(root_radii, float).copy()
     t = 0
-    for t in range(p.max_iterations):
-        n = nodes.n
-        rho, d_i = influence_distance(t, k_int, ell, p)
-        d_k = p.kill_factor * d_i
-        alive_idx = np.flatnonzero(nodes.alive[:n])
-        # 1. occupancy: markers within d_k (+ the branch radius) of a node are removed
-        if len(mk):
-            extra = radii[alive_idx] if p.occupy_branch_radius else np.zeros(len(alive_idx))
-            kk = min(4, len(alive_idx))
-            dist, j = cKDTree(nodes.pos[alive_idx]).query(mk, k=kk, distance_upper_bound=d_k + float(extra.max()))
-            if kk == 1:
-                dist, j = dist[:, None], j[:, None]
-            ok = np.isfinite(dist)
-            reach = d_k + extra[np.where(ok, j, 0)]
-            dead = np.any(ok & (dist < reach), axis=1)
-            mk, mw = mk[~dead], mw[~dead]
-        # 2. buds: apical buds, and lateral buds of nodes made in earlier cycles
-        alive = nodes.alive[:n]
-        api = np.flatnonzero(alive & ~nodes.has_main[:n])
-        lat = np.flatnonzero(alive & ~nodes.has_lat[:n] & nodes.lat_ok[:n] & (nodes.birth[:n] < t))
-        bud_node = np.concatenate([api, lat])
-        is_api = np.arange(len(bud_node)) < len(api)
-        bud_dir = np.concatenate([nodes.head[api], nodes.latdir[lat]])
-        bud_pos = nodes.pos[bud_node]
+    for t in range(params.max_iterations):
+        rho, d_i = influence_distance(t, rules.k_internodes, rules.ell, params)
+        mk, mw = _occupy(mk, mw, nodes, radii, params.kill_factor * d_i, params.occupy_branch_radius)
+        bud_node, is_api, bud_dir = _buds(nodes, t)
         entry = {"t": t, "rho": rho, "d_i": d_i, "markers": len(mk), "buds": len(bud_node)}
         if len(mk) == 0 or len(bud_node) == 0:
             history.append(entry | {"lit": 0, "new": 0, "shed": 0})
             break
-        # a gap in the cloud (occluded or unreconstructed parts): when no bud perceives a marker, the perception
-        # radius of this cycle doubles until one does, up to the plant's size (a bounded number of doublings)
-        d_use = d_i
-        for _ in range(p.max_widen + 1):
-            owner = assign_markers(mk, bud_pos, bud_dir, is_api, radius=d_use, cos_half_angle=cos_half,
-                                   neighbours=p.neighbours)
-            if np.any(owner >= 0) or d_use >= widen_limit:
-                break
-            d_use = min(2.0 * d_use, widen_limit)
+        bud_pos = nodes.pos[bud_node]
+        owner, d_use = _perceive(mk, bud_pos, bud_dir, is_api, d_i, rules, params)
         entry["d_used"] = d_use
-        mi = np.flatnonzero(owner >= 0)
-        if len(mi) == 0:
+        fed = np.flatnonzero(owner >= 0)
+        if len(fed) == 0:
             history.append(entry | {"lit": 0, "new": 0, "shed": 0})
             break
-        bi = owner[mi]
-        nb = len(bud_node)
-        w = mw[mi]
-        vec = mk[mi] - bud_pos[bi]
-        u = unit(vec)
-        wsum = np.bincount(bi, weights=w, minlength=nb)
-        vopt = np.stack([np.bincount(bi, weights=w * u[:, c], minlength=nb) for c in range(3)], 1)
-        cen = np.stack([np.bincount(bi, weights=w * vec[:, c], minlength=nb) for c in range(3)], 1)
-        lit = np.flatnonzero(growing_buds(wsum, is_api, alpha=p.bh_alpha, min_share=p.lateral_vigour))
-        vopt = vopt[lit] / wsum[lit, None]
-        reach = np.linalg.norm(cen[lit] / wsum[lit, None], axis=1)
-        # Eq. 9
-        v = unit(bud_dir[lit] + p.alpha * vopt + p.beta * trop)
-        nmet = np.clip(np.minimum(np.round(max(rho, d_use / ell)), np.round(reach / ell)), 1, None).astype(np.int64)
-        if nodes.n + int(nmet.sum()) > p.max_nodes:
+        lit, v, nmet = _shoots(mk[fed], mw[fed], owner[fed], bud_pos, bud_dir, is_api, rho, d_use, rules, params)
+        if nodes.n + int(nmet.sum()) > params.max_nodes:
             history.append(entry | {"lit": len(lit), "new": 0, "shed": 0, "stopped": "max_nodes"})
             break
-        g_node = bud_node[lit]
-        g_lat = ~is_api[lit]
-        # roll reference of each shoot: an axis continues its own, a new lateral axis starts across its parent
-        ref = np.where(g_lat[:, None], np.cross(v, nodes.head[g_node]), nodes.ref[g_node])
-        prev = g_node.copy()
-        depth = nodes.depth[g_node]
-        for step in range(int(nmet.max())):
-            act = np.flatnonzero(nmet > step)
-            h = v[act]
-            r0 = ref[act] - np.sum(ref[act] * h, 1, keepdims=True) * h
-            bad = np.linalg.norm(r0, axis=1) < 1e-9
-            r0[bad] = _perpendicular(h[bad])
-            r0 = _rotate(unit(r0), h, phi)
-            ldir = unit(np.cos(psi) * h + np.sin(psi) * r0)
-            first = step == 0
-            new = nodes.add(pos=nodes.pos[prev[act]] + ell * h, head=h, ref=r0, latdir=ldir, parent=prev[act],
-                            has_main=False, has_lat=False, lateral=g_lat[act] & first,
-                            birth=np.full(len(act), t, np.int64), depth=depth[act] + step + 1, lat_ok=True)
-            if first:
-                nodes.has_lat[prev[act][g_lat[act]]] = True
-                nodes.has_main[prev[act][~g_lat[act]]] = True
-            else:
-                nodes.has_main[prev[act]] = True
-            prev[act] = new
-            ref[act] = r0
+        _extend(nodes, bud_node[lit], ~is_api[lit], v, nmet, t, rules)
         # refinement on the fly: Eq. 5 radii, shedding of thin branches that stopped growing
         n = nodes.n
-        par = nodes.parent[:n]
-        levels = node_levels(nodes.depth[:n])
-        alive = nodes.alive[:n]
-        radii = allometric_radii(nodes.pos[:n], par, root_radii, prior.diameter_coefficient, levels=levels,
-                                 alive=alive)
-        shed = 0
-        if p.shed:
-            newest = nodes.birth[:n].astype(np.int64).copy()
-            newest[~alive] = -1
-            for idx in reversed(levels):
-                c = idx[par[idx] >= 0]
-                np.maximum.at(newest, par[c], newest[c])
-            cut = alive & nodes.lateral[:n] & (radii < shed_radius) & (newest <= t - p.shed_age)
-            if cut.any():
-                gone = cut.copy()
-                for idx in levels:
-                    c = idx[par[idx] >= 0]
-                    gone[c] |= gone[par[c]]
-                gone &= alive
-                shed = int(gone.sum())
-                nodes.alive[:n] &= ~gone
-                # a shed lateral frees its bud position: the parent does not regrow it (the bud is spent)
+        levels = levels_of(nodes.depth[:n])
+        radii = allometric_radii(nodes.pos[:n], nodes.parent[:n], root_radii, prior.diameter_coefficient,
+                                 levels=levels, alive=nodes.alive[:n])
+        shed = _shed(nodes, radii, levels, t, shed_radius, params.shed_age) if params.shed else 0
         shed_total += shed
         history.append(entry | {"lit": len(lit), "new": int(nmet.sum()), "shed": shed})
         radii = np.maximum(radii, 0.0)
-    n = nodes.n
-    alive = nodes.alive[:n]
-    keep = np.flatnonzero(alive)
-    remap = np.full(n, -1, np.int64)
-    remap[keep] = np.arange(len(keep))
-    par = nodes.parent[keep]
-    parents = np.where(par >= 0, remap[np.maximum(par, 0)], -1)
-    pos = nodes.pos[keep].copy()
-    levels = node_levels(nodes.depth[keep])
-    rad = allometric_radii(pos, parents, root_radii, prior.diameter_coefficient, levels=levels)
-    return GrowthOutput(pos, parents, nodes.lateral[keep].copy(), np.maximum(rad, min_radius), t + 1, shed_total,
-                        len(mk), history)
+    pos, parents, lateral, depth = nodes.alive_tree()
+    rad = allometric_radii(pos, parents, root_radii, prior.diameter_coefficient, levels=levels_of(depth))
+    return GrowthOutput(pos, parents, lateral, np.maximum(rad, 0.5 * prior.tip_radius), t + 1, shed_total, len(mk),
+                        history)

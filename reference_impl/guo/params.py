@@ -14,8 +14,9 @@ Two kinds of parameters:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field
 
+from plantbench import schemas
 from plantbench.errors import InputError
 
 __all__ = ["GuoParams", "SpeciesPrior", "GENERIC_PRIOR", "prior_from_hint", "params_from_options"]
@@ -58,9 +59,8 @@ class GuoParams:
     (Guo et al. 2018) [P4]."""
     rho_min: float = 6.0
     """d_i is at least rho_min * l: Eq. 7 starts at rho_0 H_0 (1 - H_0/K) < 1 internode (0 with the integer part of
-    Guo et al. 2017), which would stall the first cycles. 6 lies in the range d_i in [4 l, 12 l] that section 5.2
-    quotes and is the top of Palubicki's perception radius (4-6 internodes); with 4 the kill distance (2 l) leaves
-    leaf points around every twig alive and the skeleton grows ~2x too many branches (maple: S_T 0.39 vs 0.53) [S]."""
+    Guo et al. 2017), which would stall the first cycles [S: in the range d_i in [4 l, 12 l] that section 5.2 quotes,
+    the top of Palubicki's 4-6 internodes; docs/tuning/guo.md]."""
     rho_max: float = 12.0
     """d_i is at most rho_max * l: the top of the same typical range [S, bound from Pal]."""
     alpha: float = 1.6
@@ -73,10 +73,8 @@ class GuoParams:
     """Bud fate by Borchert-Honda allocation (Palubicki et al. 2009, notes/algorithms.md 2.2; lambda = 0.5): the
     resource v = alpha x (number of lit buds) is shared among the lit buds in proportion to the marker weight Q
     each perceives, and a bud receiving v grows floor(v) metamers, so a lateral bud whose share is below this many
-    metamers (1: the floor rule) stays dormant this cycle; apical buds keep growing while lit; 0 disables [Pal].
-    Without it every lateral bud that perceives a marker breaks, and on the 20-view multiview clouds the skeletons
-    had 1.3-4x the GT's branches (peach 2985 vs 709) whose terminal-branch density dominated Stava's d_S; with it,
-    mean S_T 0.385 -> 0.400 over the 10 plants, higher for 8 of 10, and the shoot lengths are unchanged."""
+    metamers (1: the floor rule) stays dormant this cycle; apical buds keep growing while lit; 0 disables (every lit
+    lateral bud breaks) [Pal; docs/tuning/guo.md]."""
     bh_alpha: float = 2.0
     """alpha of the Borchert-Honda allocation: mean vigour of a lit bud in metamers (the original code's
     v = 5 + 2 Q has the same slope 2) [Pal]."""
@@ -149,10 +147,8 @@ class GuoParams:
 
     leaf_support: float = 1.5
     """A leaf is kept only when the mean distance from its blade's vertices to the cloud is at most this many median
-    point spacings of the cloud, i.e. when the blade lies on points the cameras saw; 0 keeps every leaf [S: the
-    seed's leaves are procedural; a procedural leaf off the cloud is a guess that the data contradicts. Peach,
-    20 views: 14541 leaves (GT 4342), leaf vertices 6.4 cm from the GT surface on average; keeping those within
-    2 cm of the cloud (1.7 spacings) leaves 3980 and D falls from 6.4 to 5.4 cm]."""
+    point spacings of the cloud, i.e. when the blade lies on points the cameras saw; 0 keeps every leaf [S: a
+    procedural leaf off the cloud is a guess that the data contradicts; docs/tuning/guo.md]."""
     leaf_dedup: bool = True
     """After fitting, a leaf whose blade centre lies within half a leaf length of a better-supported kept leaf's is
     dropped: several procedural leaves snapped onto the same observed leaf count once [S]."""
@@ -221,16 +217,9 @@ def prior_from_hint(hint) -> SpeciesPrior:
 
 
 def params_from_options(options: dict) -> GuoParams:
-    """GuoParams from suite options; unknown names raise InputError listing the valid ones."""
-    names = {f.name for f in fields(GuoParams)}
-    bad = sorted(set(options) - names)
-    if bad:
-        raise InputError(f"guo: unknown option(s) {', '.join(bad)} (valid: {', '.join(sorted(names))}, prior, "
-                         "leaves)")
-    opts = dict(options)
-    if "tropism" in opts:
-        opts["tropism"] = tuple(float(x) for x in opts["tropism"])
-    p = replace(GuoParams(), **opts)
+    """GuoParams from suite options (:func:`plantbench.schemas.params_from_options`: unknown names raise InputError
+    listing the valid ones); values the method cannot run with raise InputError too."""
+    p = schemas.params_from_options(GuoParams, options, method="guo", also=("prior", "leaves"))
     if p.hull_fill not in ("auto", "on", "off"):
         raise InputError(f"guo: hull_fill must be 'auto', 'on' or 'off', got {p.hull_fill!r}")
     if p.candidates < 1:

@@ -15,8 +15,7 @@
    skeleton is simplified, then turned about
    their bases into the cloud around them (the leaf configuration of [40] "considering ... the normal direction";
    :func:`orient_leaves`); only the leaves whose blades lie on the cloud are kept, one per observed leaf
-   (:func:`select_leaves`) [S: the seed places procedural leaves; on our 20-view clouds they outnumbered the true
-   leaves 3x and put 86 % of the mesh's vertices 6 cm from the surface on average];
+   (:func:`select_leaves`) [S: procedural leaves off the cloud contradict the data; docs/tuning/guo.md];
 7. branch collapse and Hermite smoothing at 20 deg (reference_impl.guo.refine), Eq. 5 radii on the final skeleton;
 8. generalised-cylinder branches (reference_impl.common.geometry.branch_mesh, plantbench.geometry.tubes).
 
@@ -33,14 +32,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from plantbench.errors import InputError
+from plantbench.geometry import vectors
 from plantbench.plant import Leaf, Skeleton, TriMesh
 from reference_impl.common.geometry import branch_mesh
-from reference_impl.common.graph import depths, median_spacing, tree_levels, voxel_downsample
-from reference_impl.common.ground import Ground, GroundParams, remove_ground
-from reference_impl.common.inputs import MIN_POINTS, check_points
+from reference_impl.common.graph import median_spacing, voxel_downsample
+from reference_impl.common.ground import Ground
+from reference_impl.common.inputs import plant_height, split_ground
 from reference_impl.common.skeleton_ops import branch_orders
-from reference_impl.guo.growth import allometric_radii, grow, node_levels
+from reference_impl.guo.growth import allometric_radii, grow
 from reference_impl.guo.hull import crown_mask, poisson_disk_in_hull, shell_ratio
 from reference_impl.guo.leaves import LeafConfig, PlacedLeaves, place_leaves
 from reference_impl.guo.params import GENERIC_PRIOR, GuoParams, SpeciesPrior
@@ -101,20 +100,9 @@ def prepare(points: np.ndarray, rng: np.random.Generator, params: GuoParams = Gu
     """Steps 1-4. points : (n, 3) float (metres, Z up). Raises InputError on too few or degenerate points."""
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    pts = check_points(points)
-    ground = remove_ground(pts, rng, GroundParams())
-    plant = pts[ground.keep]
-    if len(plant) > params.outlier_neighbours + 1:
-        # isolated points (multi-view stereo floaters) would attract branches across empty space
-        d, _ = cKDTree(plant).query(plant, k=params.outlier_neighbours + 1, workers=-1)
-        dk = d[:, -1]
-        plant = plant[dk <= params.outlier_factor * np.median(dk)]
-    if len(plant) < MIN_POINTS:
-        raise InputError(f"only {len(plant)} points above the ground; at least {MIN_POINTS} are needed")
-    hgt = ground.height(plant)
-    height = float(hgt.max())
-    if not height > 0:
-        raise InputError("the cloud has no height above the ground plane")
+    pts, ground, plant = split_ground(points, rng)
+    plant = _drop_isolated(plant, params)
+    hgt, height = plant_height(plant, ground)
     extent = float(np.ptp(plant, axis=0).max())
     ell = prior.internode_length
     timings["ground"] = time.perf_counter() - t0
@@ -168,6 +156,17 @@ def prepare(points: np.ndarray, rng: np.random.Generator, params: GuoParams = Gu
     return Prepared(plant, ground, height, extent, markers, mw, len(samples), roots, axes, radii, info, spacing)
 
 
+def _drop_isolated(plant: np.ndarray, params: GuoParams) -> np.ndarray:
+    """``plant`` without its isolated points: those whose distance to their ``outlier_neighbours``-th neighbour
+    exceeds ``outlier_factor`` times the median of that distance (multi-view stereo floaters would attract branches
+    across empty space)."""
+    if len(plant) <= params.outlier_neighbours + 1:
+        return plant
+    d, _ = cKDTree(plant).query(plant, k=params.outlier_neighbours + 1, workers=-1)
+    dk = d[:, -1]
+    return plant[dk <= params.outlier_factor * np.median(dk)]
+
+
 def _leaves(pos, parents, radii, lateral, config: LeafConfig, rng, tip_internodes: int) -> PlacedLeaves:
     """Leaves (:func:`reference_impl.guo.leaves.place_leaves`) on the thin nodes at most ``tip_internodes``
     internodes below a tip ("distributed at the tip nodes along branch directions", section 5.3; 0: every thin
@@ -176,7 +175,7 @@ def _leaves(pos, parents, radii, lateral, config: LeafConfig, rng, tip_internode
 
     main = (parents >= 0) & ~lateral
     tangent, normal, _, _ = node_frames(pos, parents, main)
-    levels = tree_levels(parents)
+    levels = vectors.levels(parents)
     eligible = np.ones(len(parents), bool)
     if tip_internodes > 0:
         above = np.zeros(len(parents), np.int64)       # internodes from a node up to its farthest tip
@@ -266,9 +265,9 @@ def select_leaves(mesh: TriMesh, leaves: list[Leaf], cloud_tree: cKDTree, spacin
     as :func:`reference_impl.guo.leaves.place_leaves` and :func:`orient_leaves` write it. A leaf's support
     residual is the mean distance of its blade vertices to the cloud; leaves with a residual above ``support`` x
     max(``spacing``, :data:`LEAF_SUPPORT_LENGTH` x the leaf's length) are dropped (``support`` 0 keeps all): on a
-    dense clean cloud the spacing alone would demand more than a procedural blade's shape can match (a 300k-point
-    sample of a GT maple kept 335 of 4986 leaves). With ``dedup``, leaves are then taken in increasing residual
-    and one whose blade centre is within half a leaf length of a kept leaf's is dropped.
+    dense clean cloud the spacing alone would demand more than a procedural blade's shape can match
+    (docs/tuning/guo.md). With ``dedup``, leaves are then taken in increasing residual and one whose blade centre
+    is within half a leaf length of a kept leaf's is dropped.
 
     Returns the kept leaves' mesh, the kept leaves and counts ``{"unsupported": .., "duplicates": ..}``.
     """
@@ -403,8 +402,7 @@ def model(prep: Prepared, prior: SpeciesPrior, params: GuoParams, rng: np.random
     keep, par = collapse(g.positions, g.parents, g.radii, max_angle_deg=params.collapse_angle,
                          max_radius_change=params.collapse_radius)
     pos, par, _ = smooth(g.positions[keep], par, angle_deg=params.smooth_angle, min_spacing=0.25 * ell)
-    levels = node_levels(depths(par))
-    rad = allometric_radii(pos, par, prep.root_radii, prior.diameter_coefficient, levels=levels)
+    rad = allometric_radii(pos, par, prep.root_radii, prior.diameter_coefficient, levels=vectors.levels(par))
     rad = np.maximum(rad, 0.5 * prior.tip_radius)
     skeleton = Skeleton(pos, rad, par, branch_orders(par, rad))
     timings["refine"] = time.perf_counter() - t0

@@ -5,9 +5,10 @@ edges share similar orientations and radii, then we collapse this node to its pa
 node v with parent node u and child w, if the angle between uv and vw is larger than a threshold (20 deg), then we
 subdivide the sharp section between these two edges using a Hermite curve [8]."
 
-Collapse removes nodes in rounds of non-adjacent candidates (alternating depth parity), so that a straight chain
-does not vanish at once and each removal is judged against its current neighbours. Smoothing applies to nodes with
-one child, as the rule reads ("a node v with parent node u and child w"): the shared Xu et al. implementation
+Collapse removes nodes in rounds of non-adjacent candidates (alternating depth parity,
+:func:`reference_impl.common.skeleton_ops.remove_chain_nodes`), so that a straight chain does not vanish at once and
+each removal is judged against its current neighbours. Smoothing applies to nodes with one child, as the rule reads
+("a node v with parent node u and child w"): the shared Xu et al. implementation
 (reference_impl.common.skeleton_ops.hermite_smooth) also rounds junctions, which would start every child along its
 parent and erase the branching angle psi; here it runs on the skeleton with each junction's children detached, and
 the junctions are put back afterwards.
@@ -17,8 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from reference_impl.common.graph import depths
-from reference_impl.common.skeleton_ops import hermite_smooth, remove_nodes, unit
+from plantbench.geometry.vectors import unit
+from reference_impl.common.skeleton_ops import hermite_smooth, remove_chain_nodes
 
 __all__ = ["collapse", "smooth"]
 
@@ -30,38 +31,16 @@ def collapse(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, *, m
 
     Roots and junctions are never removed. Returns ``keep (n,)`` and the new parents over the kept nodes.
     """
-    par = np.array(parents, np.int64, copy=True)
-    n = len(par)
-    alive = np.ones(n, bool)
     cos_min = np.cos(np.radians(max_angle_deg))
-    quiet = 0
-    for rnd in range(max_rounds):
-        live_par = np.where(alive, par, -1)
-        nk = np.bincount(live_par[alive & (live_par >= 0)], minlength=n)
-        cand = np.flatnonzero(alive & (par >= 0) & (nk == 1))
-        if len(cand) == 0:
-            break
-        child_of = np.full(n, -1)
-        ch = np.flatnonzero(alive & (par >= 0))
-        child_of[par[ch]] = ch
-        c = child_of[cand]
-        e_in = unit(positions[cand] - positions[par[cand]])
-        e_out = unit(positions[c] - positions[cand])
+
+    def straight_and_even(v: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        e_in = unit(positions[v] - positions[a])
+        e_out = unit(positions[b] - positions[v])
         straight = np.sum(e_in * e_out, 1) > cos_min
-        rp, rc = radii[par[cand]], radii[c]
-        similar = np.abs(rp - rc) <= max_radius_change * np.maximum(np.maximum(rp, rc), 1e-15)
-        dep = depths(live_par)
-        rem = cand[straight & similar & (dep[cand] % 2 == rnd % 2)]
-        if len(rem) == 0:
-            quiet += 1
-            if quiet >= 2:
-                break
-            continue
-        quiet = 0
-        par[child_of[rem]] = par[rem]
-        alive[rem] = False
-    new_par, _ = remove_nodes(np.where(alive, par, -1), alive)
-    return alive, new_par
+        rp, rc = radii[a], radii[b]
+        return straight & (np.abs(rp - rc) <= max_radius_change * np.maximum(np.maximum(rp, rc), 1e-15))
+
+    return remove_chain_nodes(parents, straight_and_even, max_rounds=max_rounds)
 
 
 def smooth(positions: np.ndarray, parents: np.ndarray, *, angle_deg: float, min_spacing: float

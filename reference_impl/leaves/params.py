@@ -1,7 +1,8 @@
 """Parameters of leaf segmentation and Bezier fitting (Chaurasia and Beardsley 2017), one frozen dataclass.
 
 Lengths given as fractions scale with ``delta_plane`` (the paper's plane-fitting threshold), which itself scales with
-the leaf size: the paper's 2 cm is for its leaves, taken here to be ``reference_leaf_length`` long.
+the leaf size: the paper's 2 cm is for its leaves, taken here to be ``reference_leaf_length`` long. [S] marks our
+choices (not the paper's); what the defaults were measured on: ``docs/tuning/mvs.md``.
 """
 
 from __future__ import annotations
@@ -28,9 +29,7 @@ class LeafParams:
     paper does not state it). delta_plane is scaled by leaf_length / reference_leaf_length."""
     # ---- section 4.1: per view
     superpixels_per_leaf: float = 40.0
-    """SLIC target: expected projected leaf area / superpixel area. The paper over-segments leaves (Fig. 2(b)); our
-    leaves are small in the images and mostly occluded, so superpixels must be smaller than a visible leaf fragment
-    (measured on laurel: 6 per leaf gave candidates 60 % pure, 40 per leaf 92 %)."""
+    """SLIC target: expected projected leaf area / superpixel area (the paper over-segments leaves, Fig. 2(b)). [S]"""
     min_superpixel_px: int = 12
     """Smallest target superpixel area in pixels (bounds the SLIC segment count on far-away, tiny leaves)."""
     slic_compactness: float = 10.0
@@ -71,19 +70,13 @@ class LeafParams:
     fit_iterations: int = 15
     """Most alternations of UV mapping and Levenberg-Marquardt (the paper converges in 4-15)."""
     lm_evaluations: int = 3
-    """Levenberg-Marquardt steps between two UV mappings (scipy backend: most residual evaluations). The mapping
-    moves with the surface, so long solves between mappings buy little: 30 %-occluded test leaves come out the
-    same with 3, 5 or 10 (mean surface distance 1.28 % of the length over 20), and 1500 laurel leaves fitted in
-    12.3 s with 3 against 21.5 s with 10 (median weighted RMS 0.0172 both). [S]"""
+    """Levenberg-Marquardt steps between two UV mappings (scipy backend: most residual evaluations). [S]"""
     lm_backend: str = "batched"
     """'batched' (:func:`reference_impl.leaves.fit.lm_batch`: every leaf of a plant in one vectorised LM) or
-    'scipy' (``scipy.optimize.least_squares(method="lm")``, MINPACK, one leaf at a time: same energy, about an
-    order of magnitude slower on a plant's hundreds of leaves)."""
+    'scipy' (``scipy.optimize.least_squares(method="lm")``, MINPACK, one leaf at a time; the same energy)."""
     max_width_factor: float = 2.0
     """A fitted blade whose half-width exceeds this many times the semi-minor axis of its points' enclosing ellipse
-    has diverged (sparse multi-view-stereo leaves leave parts of the silhouette unconstrained: on a 20-view laurel,
-    5 % of the fits came out wider than 19 cm for 3 cm leaves); it keeps the ellipse-shaped start (counted as
-    ``fits_reset``). [S]"""
+    has diverged; it keeps the ellipse-shaped start (counted as ``fits_reset``). [S]"""
     fit_tolerance: float = 1e-3
     """Alternation stops when the weighted RMS residual (leaf lengths) changes by less than this."""
     occlusion_weights: bool = True

@@ -33,6 +33,7 @@ from plantbench.cameras import Camera, read_cameras
 from plantbench.errors import InputError
 from plantbench.geometry.leaf import BezierLeaf
 from plantbench.plant import Leaf, TriMesh
+from plantbench.schemas import jsonable as _jsonable
 from plantbench.seeding import rng as seeded_rng
 
 from .fit import LeafFit, fit_leaves
@@ -195,23 +196,10 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
     t_all = time.perf_counter()
     views = views_folder(views_dir)
     cameras, names = read_cameras(views / "cameras.json")
-    sources = sum(x is not None and x is not False for x in (depth_maps, depth_dir, oracle_depth or None))
-    if sources != 1:
-        raise InputError("segment_and_fit needs exactly one depth source: depth_maps, depth_dir or oracle_depth=True")
-    if depth_maps is not None:
-        if len(depth_maps) != len(cameras):
-            raise InputError(f"{len(depth_maps)} depth maps for {len(cameras)} cameras")
-        depths = [None if d is None else np.asarray(d, np.float64) for d in depth_maps]
-    else:
-        depths = load_depth_dir(views / "depth" if oracle_depth else depth_dir, names)
-    timings: dict[str, float] = {}
     skipped = dict.fromkeys(SKIP_REASONS, 0)
-    for i, (d, cam) in enumerate(zip(depths, cameras, strict=True)):
-        if d is not None and d.shape != (cam.height, cam.width):
-            raise InputError(f"depth map {i} is {d.shape[1]}x{d.shape[0]}, its camera says {cam.width}x{cam.height}")
-        if d is None or not np.any(np.isfinite(d) & (d > 0)):
-            depths[i] = None
-            skipped["view_without_depth"] += 1
+    depths = _read_depths(views, cameras, names, depth_maps=depth_maps, depth_dir=depth_dir,
+                          oracle_depth=oracle_depth, skipped=skipped)
+    timings: dict[str, float] = {}
     t0 = time.perf_counter()
     from reference_impl.mvs.method import load_images
 
@@ -222,37 +210,14 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
         stats["timings"] = timings
         return LeafFitResult([], [], [], skipped, stats)
 
-    if leaf_length_hint is not None:
-        if not leaf_length_hint > 0:
-            raise InputError(f"leaf_length_hint must be positive, got {leaf_length_hint!r}")
-        length = float(leaf_length_hint)
-    else:  # a leaf ~40 pixels long at the median depth: a first guess, refined below
-        foot = [np.median(d[np.isfinite(d) & (d > 0)]) / cam.K[0, 0] for d, cam in zip(depths, cameras, strict=True)
-                if d is not None]
-        length = 40.0 * float(np.median(foot))
+    length = _first_leaf_length(depths, cameras, leaf_length_hint)
     t0 = time.perf_counter()
     grounds = (_ground_masks(depths, cameras, params.scaled_delta(length), seeded_rng(seed, "leaves", "ground"))
                if params.ground else [None] * len(depths))
     timings["ground"] = time.perf_counter() - t0
-    for attempt in range(2):
-        delta = params.scaled_delta(length)
-        t0 = time.perf_counter()
-        segs, sk_seg = _segment_all(images, depths, cameras, delta=delta, leaf_length=length, params=params,
-                                    seed=seed, grounds=grounds)
-        timings["segment"] = timings.get("segment", 0.0) + time.perf_counter() - t0
-        t0 = time.perf_counter()
-        points, cands, sk_cand = _candidates(segs, params)
-        timings["candidates"] = timings.get("candidates", 0.0) + time.perf_counter() - t0
-        if leaf_length_hint is not None or attempt == 1 or not cands:
-            break
-        conf = np.array([c.confidence for c in cands])
-        top = np.argsort(-conf, kind="stable")[: params.template_leaves]
-        est = float(np.median([2 * cands[i].semi_axes[0] for i in top]))
-        if abs(est / length - 1.0) <= 0.25:
-            break
-        length = est
-    skipped.update(sk_seg)
-    skipped.update(sk_cand)
+    points, cands, length, delta, segs = _segment_candidates(
+        images, depths, cameras, length=length, estimate=leaf_length_hint is None, params=params, seed=seed,
+        grounds=grounds, skipped=skipped, timings=timings)
     stats.update({"leaf_length": length, "delta_plane": delta, "candidates": len(cands),
                   "superpixels": int(sum(s.superpixels for s in segs if s is not None)), "scene_points": len(points)})
 
@@ -264,8 +229,86 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
     stats["template_ratio"] = ratio
 
     t0 = time.perf_counter()
-    fits_or_skips = fit_leaves([points[g] for g in groups], params=params, rng=seeded_rng(seed, "leaves", "fit"),
-                               up=up)
+    leaves, fits, leaf_pts = _fit(points, groups, params=params, rng=seeded_rng(seed, "leaves", "fit"), up=up,
+                                  skipped=skipped)
+    timings["fit"] = time.perf_counter() - t0
+    timings["total"] = time.perf_counter() - t_all
+    stats["timings"] = timings
+    stats["fit_iterations_median"] = float(np.median([f.iterations for f in fits])) if fits else 0.0
+    stats["fits_reset"] = int(sum(f.reset for f in fits))
+    return LeafFitResult(leaves, fits, leaf_pts, skipped, stats)
+
+
+def _read_depths(views: Path, cameras: list[Camera], names: list[str], *, depth_maps, depth_dir, oracle_depth: bool,
+                 skipped: dict[str, int]) -> list[np.ndarray | None]:
+    """One float64 depth map per camera from the one depth source given, None for a view without depth (counted in
+    ``skipped``); InputError for no or several sources, a wrong number of maps or a map of the wrong size."""
+    sources = sum(x is not None and x is not False for x in (depth_maps, depth_dir, oracle_depth or None))
+    if sources != 1:
+        raise InputError("segment_and_fit needs exactly one depth source: depth_maps, depth_dir or oracle_depth=True")
+    if depth_maps is not None:
+        if len(depth_maps) != len(cameras):
+            raise InputError(f"{len(depth_maps)} depth maps for {len(cameras)} cameras")
+        depths = [None if d is None else np.asarray(d, np.float64) for d in depth_maps]
+    else:
+        depths = load_depth_dir(views / "depth" if oracle_depth else depth_dir, names)
+    for i, (d, cam) in enumerate(zip(depths, cameras, strict=True)):
+        if d is not None and d.shape != (cam.height, cam.width):
+            raise InputError(f"depth map {i} is {d.shape[1]}x{d.shape[0]}, its camera says {cam.width}x{cam.height}")
+        if d is None or not np.any(np.isfinite(d) & (d > 0)):
+            depths[i] = None
+            skipped["view_without_depth"] += 1
+    return depths
+
+
+def _first_leaf_length(depths: list[np.ndarray | None], cameras: list[Camera], hint: float | None) -> float:
+    """The hint, else a leaf ~40 pixels long at the median depth: a first guess, refined by
+    :func:`_segment_candidates`."""
+    if hint is not None:
+        if not hint > 0:
+            raise InputError(f"leaf_length_hint must be positive, got {hint!r}")
+        return float(hint)
+    foot = [np.median(d[np.isfinite(d) & (d > 0)]) / cam.K[0, 0] for d, cam in zip(depths, cameras, strict=True)
+            if d is not None]
+    return 40.0 * float(np.median(foot))
+
+
+def _segment_candidates(images, depths, cameras, *, length: float, estimate: bool, params: LeafParams, seed: int,
+                        grounds, skipped: dict[str, int], timings: dict[str, float]
+                        ) -> tuple[np.ndarray, list[Candidate], float, float, list[ViewSegments | None]]:
+    """Per-view segmentation and the candidates at leaf ``length``; with ``estimate``, run again once at the median
+    major axis of the ``template_leaves`` most confident candidates when it is more than 25 % off.
+
+    Returns the scene points, the candidates, the leaf length and delta_plane used, and the views' segments;
+    ``skipped`` and ``timings`` (segment, candidates) are updated.
+    """
+    for attempt in range(2):
+        delta = params.scaled_delta(length)
+        t0 = time.perf_counter()
+        segs, sk_seg = _segment_all(images, depths, cameras, delta=delta, leaf_length=length, params=params,
+                                    seed=seed, grounds=grounds)
+        timings["segment"] = timings.get("segment", 0.0) + time.perf_counter() - t0
+        t0 = time.perf_counter()
+        points, cands, sk_cand = _candidates(segs, params)
+        timings["candidates"] = timings.get("candidates", 0.0) + time.perf_counter() - t0
+        if not estimate or attempt == 1 or not cands:
+            break
+        conf = np.array([c.confidence for c in cands])
+        top = np.argsort(-conf, kind="stable")[: params.template_leaves]
+        est = float(np.median([2 * cands[i].semi_axes[0] for i in top]))
+        if abs(est / length - 1.0) <= 0.25:
+            break
+        length = est
+    skipped.update(sk_seg)
+    skipped.update(sk_cand)
+    return points, cands, length, delta, segs
+
+
+def _fit(points: np.ndarray, groups: list[np.ndarray], *, params: LeafParams, rng: np.random.Generator, up,
+         skipped: dict[str, int]) -> tuple[list[Leaf], list[LeafFit], list[np.ndarray]]:
+    """The Bezier leaf fitted to each group of ``points``: the Leaf instances (ids in order), their fits and points;
+    the groups whose fit failed are counted in ``skipped``."""
+    fits_or_skips = fit_leaves([points[g] for g in groups], params=params, rng=rng, up=up)
     leaves, fits, leaf_pts = [], [], []
     for g, f in zip(groups, fits_or_skips, strict=True):
         if isinstance(f, str):
@@ -274,12 +317,7 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
         leaves.append(Leaf(len(leaves), -1, f.transform, BezierLeaf.from_vector(f.omega).to_dict(), f.length, f.width))
         fits.append(f)
         leaf_pts.append(points[g])
-    timings["fit"] = time.perf_counter() - t0
-    timings["total"] = time.perf_counter() - t_all
-    stats["timings"] = timings
-    stats["fit_iterations_median"] = float(np.median([f.iterations for f in fits])) if fits else 0.0
-    stats["fits_reset"] = int(sum(f.reset for f in fits))
-    return LeafFitResult(leaves, fits, leaf_pts, skipped, stats)
+    return leaves, fits, leaf_pts
 
 
 def fitted_mesh(result: LeafFitResult, resolution: tuple[int, int] = (4, 8)) -> TriMesh:
@@ -310,13 +348,3 @@ def write_leaves(out_dir: str | os.PathLike, result: LeafFitResult, *, samples_p
     write_reconstruction(out_dir, None, leaves=result.leaves, points=pts, point_fields={"leaf_id": ids})
     write_json(Path(out_dir) / "leaves_stats.json", {"format": "plantbench.leaves-stats/1", "count": len(result.leaves),
                                                      "skipped": result.skipped, "stats": _jsonable(result.stats)})
-
-
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.generic):
-        return obj.item()
-    return obj

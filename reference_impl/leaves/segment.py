@@ -197,52 +197,26 @@ def superpixel_graph(label_img: np.ndarray, point_img: np.ndarray, centroid: np.
 
 def segment_view(image: np.ndarray, depth: np.ndarray, camera: Camera, *, delta: float, leaf_length: float,
                  params: LeafParams, rng: np.random.Generator, exclude: np.ndarray | None = None) -> ViewSegments:
-    """Candidate leaves of one view (section 4.1).
+    """Candidate leaves of one view (section 4.1): superpixels, a plane per superpixel, the affinity graph's
+    components.
 
     image : (h, w, 3) uint8 RGB; depth : (h, w) float z-depth (inf/NaN: none)
     delta : delta_plane, metres; leaf_length : expected leaf length, metres (sizes the superpixels)
     exclude : (h, w) bool, pixels to ignore (e.g. the ground), optional
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from skimage.color import rgb2lab
-    from skimage.segmentation import slic
-
     hgt, wid = depth.shape
     pts_all, flat_all = backproject(depth, camera)
     fg = np.zeros(hgt * wid, bool)
     fg[flat_all] = True
     if exclude is not None:
         fg &= ~np.asarray(exclude, bool).ravel()
-    empty = ViewSegments(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0),
-                         np.zeros(0, np.int64), 0, {})
     if fg.sum() < params.min_points:
-        return empty
+        return ViewSegments(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0),
+                            np.zeros(0, np.int64), 0, {})
     keep_pt = fg[flat_all]
     pts_all, flat_all = pts_all[keep_pt], flat_all[keep_pt]
-    fg = fg.reshape(hgt, wid)
-    z = np.where(fg, np.nan_to_num(depth, nan=0.0, posinf=0.0), 0.0)
-    zmed = float(np.median(z[fg]))
-    fx, fy = camera.K[0, 0], camera.K[1, 1]
-    leaf_px = 0.35 * leaf_length**2 * fx * fy / zmed**2  # projected area of a leaf facing the camera, pixels
-    sp_area = max(params.min_superpixel_px, leaf_px / params.superpixels_per_leaf)
-    # SLIC on the bounding box of the pixels with depth, unmasked (scikit-image's masked mode seeds its centres by
-    # k-means over the mask, several times slower); pixels without depth get a depth feature beyond every surface,
-    # so superpixels do not cross into them, and are dropped afterwards. scikit-image rescales the feature image to
-    # [0, 1] (jointly over channels), so the compactness, meant in Lab units, is divided by the feature range.
-    rows, cols = np.flatnonzero(fg.any(1)), np.flatnonzero(fg.any(0))
-    r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
-    lab = rgb2lab(np.asarray(image[r0:r1, c0:c1, :3], np.uint8))
-    zf = params.depth_weight * (z[r0:r1, c0:c1] - zmed) / delta
-    inside = fg[r0:r1, c0:c1]
-    zf = np.where(inside, zf, zf[inside].max() + 100.0)
-    feat = np.concatenate([lab, zf[..., None]], axis=2)
-    frange = float(feat.max() - feat.min())
-    nseg_target = max(1, int(round((r1 - r0) * (c1 - c0) / sp_area)))
-    crop = slic(feat, n_segments=nseg_target, compactness=params.slic_compactness / max(frange, 1e-9),
-                channel_axis=-1, convert2lab=False, start_label=1, enforce_connectivity=True)
-    labels = np.zeros((hgt, wid), np.int64)
-    labels[r0:r1, c0:c1] = np.where(fg[r0:r1, c0:c1], crop, 0)
+    labels = _superpixels(image, depth, fg.reshape(hgt, wid), camera, delta=delta, leaf_length=leaf_length,
+                          params=params)
     seg_of_px = labels.ravel()[flat_all] - 1
     ok = seg_of_px >= 0
     pts, flat, seg = pts_all[ok], flat_all[ok], seg_of_px[ok]
@@ -256,6 +230,60 @@ def segment_view(image: np.ndarray, depth: np.ndarray, camera: Camera, *, delta:
     flip = np.einsum("sk,sk->s", normal, camera.center - centroid) < 0
     normal[flip] *= -1
     pts, flat, seg = pts[keep], flat[keep], seg[keep]
+    cand_of_seg = _candidate_of_superpixel(pts, flat, seg, (hgt, wid), centroid, normal, valid, delta=delta,
+                                           params=params)
+    area = _pixel_area(pts, normal[seg], camera)
+    return ViewSegments(pts, flat, normal[seg], area, cand_of_seg[seg], nseg, skipped)
+
+
+def _superpixels(image: np.ndarray, depth: np.ndarray, fg: np.ndarray, camera: Camera, *, delta: float,
+                 leaf_length: float, params: LeafParams) -> np.ndarray:
+    """(h, w) int SLIC labels (1..) of the pixels of ``fg`` (0 elsewhere) on colour (Lab) and depth, sized for
+    ``superpixels_per_leaf`` superpixels per leaf of ``leaf_length`` facing the camera at the median depth.
+
+    SLIC runs on the bounding box of the pixels with depth, unmasked (scikit-image's masked mode seeds its centres by
+    k-means over the mask, several times slower); pixels without depth get a depth feature beyond every surface,
+    so superpixels do not cross into them, and are dropped afterwards. scikit-image rescales the feature image to
+    [0, 1] (jointly over channels), so the compactness, meant in Lab units, is divided by the feature range.
+    """
+    from skimage.color import rgb2lab
+    from skimage.segmentation import slic
+
+    z = np.where(fg, np.nan_to_num(depth, nan=0.0, posinf=0.0), 0.0)
+    zmed = float(np.median(z[fg]))
+    fx, fy = camera.K[0, 0], camera.K[1, 1]
+    leaf_px = 0.35 * leaf_length**2 * fx * fy / zmed**2  # projected area of a leaf facing the camera, pixels
+    sp_area = max(params.min_superpixel_px, leaf_px / params.superpixels_per_leaf)
+    rows, cols = np.flatnonzero(fg.any(1)), np.flatnonzero(fg.any(0))
+    r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    lab = rgb2lab(np.asarray(image[r0:r1, c0:c1, :3], np.uint8))
+    zf = params.depth_weight * (z[r0:r1, c0:c1] - zmed) / delta
+    inside = fg[r0:r1, c0:c1]
+    zf = np.where(inside, zf, zf[inside].max() + 100.0)
+    feat = np.concatenate([lab, zf[..., None]], axis=2)
+    frange = float(feat.max() - feat.min())
+    nseg_target = max(1, int(round((r1 - r0) * (c1 - c0) / sp_area)))
+    crop = slic(feat, n_segments=nseg_target, compactness=params.slic_compactness / max(frange, 1e-9),
+                channel_axis=-1, convert2lab=False, start_label=1, enforce_connectivity=True)
+    labels = np.zeros(fg.shape, np.int64)
+    labels[r0:r1, c0:c1] = np.where(fg[r0:r1, c0:c1], crop, 0)
+    return labels
+
+
+def _candidate_of_superpixel(pts: np.ndarray, flat: np.ndarray, seg: np.ndarray, shape: tuple[int, int],
+                             centroid: np.ndarray, normal: np.ndarray, valid: np.ndarray, *, delta: float,
+                             params: LeafParams) -> np.ndarray:
+    """(nseg,) candidate leaf of each superpixel (-1: none): the connected components of the graph of valid
+    superpixels joined by an affinity above ``affinity_threshold``, renumbered 0..k-1.
+
+    pts, flat, seg : the kept points, their flat pixel indices and superpixels; shape : the image's (h, w)
+    centroid, normal : (nseg, 3) the superpixel planes; valid : (nseg,) bool, superpixels with a plane
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    hgt, wid = shape
+    nseg = len(valid)
     label_img = np.full(hgt * wid, -1, np.int64)
     label_img[flat] = seg
     point_img = np.zeros((hgt * wid, 3))
@@ -265,18 +293,20 @@ def segment_view(image: np.ndarray, depth: np.ndarray, camera: Camera, *, delta:
     strong = edges[aff > params.affinity_threshold]
     graph = coo_matrix((np.ones(len(strong)), (strong[:, 0], strong[:, 1])), shape=(nseg, nseg))
     _, comp = connected_components(graph, directed=False)
-    # candidate ids: components of valid superpixels, renumbered 0..k-1
     comp_valid = np.where(valid, comp, -1)
     _, cand_of_seg = np.unique(comp_valid, return_inverse=True)
-    cand_of_seg = cand_of_seg - (1 if (comp_valid < 0).any() else 0)
-    cand = cand_of_seg[seg]
-    # pixel footprint on the plane: z^2 cos(alpha) / (fx fy cos(theta))
+    return cand_of_seg - (1 if (comp_valid < 0).any() else 0)
+
+
+def _pixel_area(pts: np.ndarray, normal: np.ndarray, camera: Camera) -> np.ndarray:
+    """(n,) surface area (m^2) each pixel's point covers on its plane (unit ``normal`` (n, 3)): the pixel footprint
+    z^2 cos(alpha) / (fx fy cos(theta)), theta at least acos(0.2)."""
+    fx, fy = camera.K[0, 0], camera.K[1, 1]
     ray = pts - camera.center
     rn = np.linalg.norm(ray, axis=1)
     zc = (pts @ camera.R.T + camera.t)[:, 2]
-    cos_t = np.abs(np.einsum("nk,nk->n", ray, normal[seg])) / rn
-    area = zc**2 * (zc / rn) / (fx * fy * np.maximum(cos_t, 0.2))
-    return ViewSegments(pts, flat, normal[seg], area, cand, nseg, skipped)
+    cos_t = np.abs(np.einsum("nk,nk->n", ray, normal)) / rn
+    return zc**2 * (zc / rn) / (fx * fy * np.maximum(cos_t, 0.2))
 
 
 @dataclass

@@ -10,9 +10,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from plantbench.io.plantio import write_reconstruction
+from plantbench.schemas import params_from_options
 from plantbench.seeding import rng as seeded_rng
 from reference_impl.common.inputs import load_points
-from reference_impl.common.options import params_from_options
 from reference_impl.livny.bsg import LivnyParams, LivnyResult, reconstruct_livny
 
 __all__ = ["Livny", "LivnyParams", "reconstruct_livny"]

@@ -39,6 +39,7 @@ from scipy.sparse.linalg import spsolve
 from scipy.spatial import cKDTree
 
 from plantbench.errors import InputError
+from plantbench.geometry.vectors import unit
 from plantbench.plant import Leaf, Skeleton, TriMesh
 from reference_impl.common.geometry import bezier_leaves, branch_mesh, leaf_frames
 from reference_impl.common.graph import (
@@ -49,11 +50,11 @@ from reference_impl.common.graph import (
     subtree_lengths,
     voxel_downsample,
 )
-from reference_impl.common.ground import GroundParams, remove_ground
-from reference_impl.common.inputs import MIN_POINTS, check_points
+from reference_impl.common.ground import Ground
+from reference_impl.common.inputs import plant_height, split_ground
 from reference_impl.common.leaves import foliage_cells, sample_edges, skeleton_distance
 from reference_impl.common.radii import pipe_model_radii
-from reference_impl.common.roots import anchor_roots, find_roots, stem_radius
+from reference_impl.common.roots import anchor_roots, find_roots, stem_radii
 from reference_impl.common.skeleton_ops import (
     branch_orders,
     merge_siblings,
@@ -62,7 +63,6 @@ from reference_impl.common.skeleton_ops import (
     remove_degree2,
     remove_nodes,
     spatial_merge,
-    unit,
 )
 
 __all__ = ["LivnyParams", "LivnyResult", "reconstruct_livny", "orientation_field", "reembed"]
@@ -73,11 +73,8 @@ class LivnyParams:
     """Parameters of the Livny-style baseline (source in brackets, see the module docstring)."""
 
     voxel_fraction: float = 0.0075
-    """Voxel edge as a fraction of the plant's height [S, notes 1.1 step 0: 0.5-1 % of the height]. Livny et al. work
-    on the points themselves; 0.5 % of the bounding-box diagonal (notes 1.2) made the voxel 2.6 times the height
-    rule on wide crowns (4.1 cm on a 3.2 m crab apple whose median twig radius is 2.5 mm): skeleton F1@1 of its
-    3-station scan 0.12; 0.75 % of the height (2.4 cm) gives 0.30, 0.5 % (1.6 cm) 0.44 but leaves surface ridges as
-    twigs on thick one-sided stems (47 tips for 17 on the test tree of tests/baselines/test_methods.py)."""
+    """Voxel edge as a fraction of the plant's height (Livny et al. work on the points themselves) [S, notes 1.1
+    step 0: 0.5-1 % of the height; docs/tuning/guo.md]."""
     max_vertices: int = 150_000
     """When more voxels than this remain, the voxel grows (by the square root of the excess: scans sample surfaces)
     until they fit [S: keeps a 300k-point plant under the 60 s target of issue 7]."""
@@ -212,22 +209,9 @@ def _anchors(tree: cKDTree, cloud: np.ndarray, mass: np.ndarray, positions: np.n
     return out
 
 
-def reconstruct_livny(points: np.ndarray, rng: np.random.Generator, params: LivnyParams = LivnyParams()
-                      ) -> LivnyResult:
-    """Skeleton, branch + leaf mesh and leaves from a cloud (metres, Z up, ground near z = 0).
-
-    points : (n, 3) float. Raises InputError for fewer than MIN_POINTS valid points (after ground removal) or
-    non-finite coordinates.
-    """
-    pts = check_points(points)
-    ground = remove_ground(pts, rng, GroundParams())
-    plant = pts[ground.keep]
-    if len(plant) < MIN_POINTS:
-        raise InputError(f"only {len(plant)} points above the ground; at least {MIN_POINTS} are needed")
-    hgt = ground.height(plant)
-    height = float(hgt.max())
-    if not height > 0:
-        raise InputError("the cloud has no height above the ground plane")
+def _voxel_cloud(plant: np.ndarray, height: float, params: LivnyParams) -> tuple[np.ndarray, np.ndarray, float]:
+    """Step 1's downsampling: the voxel centroids, their point counts (as float masses) and the voxel edge, grown
+    until at most ``max_vertices`` voxels remain."""
     voxel = params.voxel_fraction * height
     cloud, _, mass = voxel_downsample(plant, voxel)
     for _ in range(8):  # bounded: each pass grows the voxel by at least 10 %
@@ -235,80 +219,77 @@ def reconstruct_livny(points: np.ndarray, rng: np.random.Generator, params: Livn
             break
         voxel *= max(1.1, float(np.sqrt(len(cloud) / params.max_vertices)))
         cloud, _, mass = voxel_downsample(plant, voxel)
-    mass = mass.astype(float)
-    info: dict = {"points": len(pts), "plant_points": len(plant), "voxel": voxel, "vertices": len(cloud)}
-    if len(cloud) < 3:
-        raise InputError(f"the cloud collapses to {len(cloud)} voxels of {voxel:.4g} m; too small to skeletonise")
+    return cloud, mass.astype(float), voxel
+
+
+def _shortest_path_forest(cloud: np.ndarray, ground: Ground, height: float, voxel: float, params: LivnyParams
+                          ) -> tuple[np.ndarray, dict]:
+    """Steps 2-4: the kNN graph with its components bridged, the roots and the shortest-path tree from them.
+    Returns the parents and statistics."""
     spacing = max(median_spacing(cloud), 1e-9)
     graph = knn_graph(cloud, params.k, max_edge=params.max_edge_factor * spacing)
     graph, nbridges = bridge_components(cloud, graph)
-    info["bridges"] = nbridges
-    cloud_h = ground.height(cloud)
-    roots = find_roots(cloud, cloud_h, graph, slab=params.root_slab_fraction * height + voxel,
+    roots = find_roots(cloud, ground.height(cloud), graph, slab=params.root_slab_fraction * height + voxel,
                        group_cell=max(params.plant_gap_fraction * height, 2 * params.max_edge_factor * spacing))
-    info["roots"] = len(roots)
     _, parents, _ = shortest_path_tree(graph, roots)
+    return parents, {"bridges": nbridges, "roots": len(roots)}
+
+
+def _pipe_radii(pos: np.ndarray, parents: np.ndarray, plant: np.ndarray, *, voxel: float, height: float,
+                params: LivnyParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Vertex weights (supported length plus one voxel), the orientation field, the trunk radius of each root
+    (cylinder fit along the field [A]) and the pipe-model radii anchored on them: ``(w, field, trunk, radii)``."""
+    w = subtree_lengths(pos, parents) + voxel
+    field = orientation_field(pos, parents, w)
+    roots = np.flatnonzero(parents < 0)
+    min_r = params.min_radius_fraction * height
+    trunk = stem_radii(plant, pos[roots], field[roots], offset=voxel, length=params.trunk_fit_fraction * height,
+                       max_radius=0.1 * height, fallback=2 * voxel, min_radius=min_r)
+    radii = pipe_model_radii(w, parents, trunk, exponent=params.radius_exponent, min_radius=min_r)
+    return w, field, trunk, radii
+
+
+def _contract(cloud: np.ndarray, mass: np.ndarray, parents: np.ndarray, plant: np.ndarray, *, voxel: float,
+              height: float, params: LivnyParams) -> tuple[np.ndarray, np.ndarray]:
+    """Step 5, the BSG passes: weights, orientation field, re-embedding towards the cloud's anchors (``mass``: each
+    cloud vertex's point count), resampling. Returns positions and parents."""
     pos = cloud.copy()
     vmass = mass.copy()
     tree = cKDTree(cloud)
-    min_r = params.min_radius_fraction * height
-
-    # trunk radius per root from the cloud (vertical axis first; refined below with the skeleton's direction)
-    def root_radii(pos: np.ndarray, par: np.ndarray, field: np.ndarray | None) -> np.ndarray:
-        out = []
-        for r in np.flatnonzero(par < 0):
-            axis = field[r] if field is not None else np.array([0.0, 0.0, 1.0])
-            base = pos[r] - axis * voxel
-            rad, _ = stem_radius(plant, base, axis, length=params.trunk_fit_fraction * height,
-                                 max_radius=0.1 * height, fallback=2 * voxel)
-            out.append(max(rad, min_r))
-        return np.asarray(out)
-
-    field = None
     for _ in range(params.outer_iterations):
-        w = subtree_lengths(pos, parents) + voxel
-        field = orientation_field(pos, parents, w)
-        rr = root_radii(pos, parents, field)
-        radii = pipe_model_radii(w, parents, rr, exponent=params.radius_exponent, min_radius=min_r)
+        w, field, _, radii = _pipe_radii(pos, parents, plant, voxel=voxel, height=height, params=params)
         rho = np.clip(params.anchor_radius_factor * radii, voxel, 0.1 * height)
         anchors = _anchors(tree, cloud, mass, pos, field, rho)
         pos = reembed(pos, parents, w, field, anchors, params.data_weight)
         pos, parents, vmass, _ = spatial_merge(pos, parents, vmass, params.merge_factor * voxel)
-    info["bsg_vertices"] = len(pos)
+    return pos, parents
 
-    # simplification until stable
+
+def _simplify(pos: np.ndarray, parents: np.ndarray, plant: np.ndarray, *, voxel: float, height: float,
+              params: LivnyParams) -> tuple[np.ndarray, np.ndarray]:
+    """Step 6 until stable: subtree-ratio pruning with short twigs, sibling merging, degree-2 removal."""
     for _ in range(params.simplify_rounds):
         n_before = len(pos)
         keep = prune_by_ratio(pos, parents, params.prune_ratio)
         keep &= prune_short_tips(pos, parents, params.min_twig_voxels * voxel, rounds=1)
         parents, _ = remove_nodes(parents, keep)
-        pos, vmass = pos[keep], vmass[keep]
+        pos = pos[keep]
         w = subtree_lengths(pos, parents) + voxel
-        pos, parents, index = merge_siblings(pos, parents, w, max_angle_deg=params.sibling_angle_deg,
-                                             length_ratio=params.sibling_length_ratio)
-        vm = np.zeros(len(pos))
-        np.add.at(vm, index, vmass)
-        vmass = vm
-        w = subtree_lengths(pos, parents) + voxel
-        field = orientation_field(pos, parents, w)
-        radii = pipe_model_radii(w, parents, root_radii(pos, parents, field), exponent=params.radius_exponent,
-                                 min_radius=min_r)
+        pos, parents, _ = merge_siblings(pos, parents, w, max_angle_deg=params.sibling_angle_deg,
+                                         length_ratio=params.sibling_length_ratio)
+        _, _, _, radii = _pipe_radii(pos, parents, plant, voxel=voxel, height=height, params=params)
         alive, parents = remove_degree2(pos, parents, radii)
-        pos, vmass = pos[alive], vmass[alive]
+        pos = pos[alive]
         if len(pos) == n_before:
             break
+    return pos, parents
 
-    # radii, anchored on the trunk fit; then the ground node under each root
-    w = subtree_lengths(pos, parents) + voxel
-    field = orientation_field(pos, parents, w)
-    rr = root_radii(pos, parents, field)
-    radii = pipe_model_radii(w, parents, rr, exponent=params.radius_exponent, min_radius=min_r)
-    gz = pos[:, 0] * ground.coef[0] + pos[:, 1] * ground.coef[1] + ground.coef[2]
-    pos, parents, radii, _ = anchor_roots(pos, parents, radii, gz, min_gap=0.25 * voxel)
-    skeleton = Skeleton(pos, np.maximum(radii, min_r), parents, branch_orders(parents, radii))
 
-    # leaves in the lobes: crown points the tubes do not explain, one leaf per leaf-sized cell, each hanging from
-    # the nearest node of a terminal subtree (supported length <= lobe_fraction of its root's)
+def _lobe_leaves(plant: np.ndarray, skeleton: Skeleton, *, voxel: float, height: float, params: LivnyParams
+                 ) -> tuple[TriMesh, list[Leaf]]:
+    """Step 8: leaves in the lobes. The crown points the tubes do not explain, one leaf per leaf-sized cell, each
+    hanging from the nearest node of a terminal subtree (supported length <= ``lobe_fraction`` of its root's)."""
+    pos, parents = skeleton.positions, skeleton.parents
     leaf_len = params.leaf_length_fraction * height
     dist, _, rad = skeleton_distance(plant, pos, parents, skeleton.radii, step=0.5 * voxel)
     fol = dist > rad + params.foliage_margin * voxel
@@ -324,10 +305,37 @@ def reconstruct_livny(points: np.ndarray, rng: np.random.Generator, params: Livn
         lnode_pt = np.zeros(int(fol.sum()), np.int64)
     cen, normal, lnode, _ = foliage_cells(plant[fol], lnode_pt, leaf_len)
     axis = unit(cen - pos[lnode])
-    base = cen - 0.5 * leaf_len * axis
-    frames = leaf_frames(base, axis, normal)
-    leaf_mesh, leaves = bezier_leaves(frames, np.full(len(cen), leaf_len), lnode)
+    frames = leaf_frames(cen - 0.5 * leaf_len * axis, axis, normal)
+    return bezier_leaves(frames, np.full(len(cen), leaf_len), lnode)
+
+
+def reconstruct_livny(points: np.ndarray, rng: np.random.Generator, params: LivnyParams = LivnyParams()
+                      ) -> LivnyResult:
+    """Skeleton, branch + leaf mesh and leaves from a cloud (metres, Z up, ground near z = 0).
+
+    points : (n, 3) float. Raises InputError for fewer than MIN_POINTS valid points (after ground removal) or
+    non-finite coordinates. The steps are those of the module docstring.
+    """
+    pts, ground, plant = split_ground(points, rng)
+    _, height = plant_height(plant, ground)
+    cloud, mass, voxel = _voxel_cloud(plant, height, params)
+    info: dict = {"points": len(pts), "plant_points": len(plant), "voxel": voxel, "vertices": len(cloud)}
+    if len(cloud) < 3:
+        raise InputError(f"the cloud collapses to {len(cloud)} voxels of {voxel:.4g} m; too small to skeletonise")
+    parents, stats = _shortest_path_forest(cloud, ground, height, voxel, params)
+    info.update(stats)
+    pos, parents = _contract(cloud, mass, parents, plant, voxel=voxel, height=height, params=params)
+    info["bsg_vertices"] = len(pos)
+    pos, parents = _simplify(pos, parents, plant, voxel=voxel, height=height, params=params)
+
+    # step 7: radii, anchored on the trunk fit; then the ground node under each root
+    _, _, rr, radii = _pipe_radii(pos, parents, plant, voxel=voxel, height=height, params=params)
+    gz = pos[:, 0] * ground.coef[0] + pos[:, 1] * ground.coef[1] + ground.coef[2]
+    pos, parents, radii, _ = anchor_roots(pos, parents, radii, gz, min_gap=0.25 * voxel)
+    skeleton = Skeleton(pos, np.maximum(radii, params.min_radius_fraction * height), parents,
+                        branch_orders(parents, radii))
+
+    leaf_mesh, leaves = _lobe_leaves(plant, skeleton, voxel=voxel, height=height, params=params)
     wood = branch_mesh(skeleton, edge_length=max(voxel, 2 * np.pi * float(rr.max()) / 12))
     info.update(nodes=len(pos), leaves=len(leaves), height=height, root_radii=rr.tolist())
     return LivnyResult(skeleton, TriMesh.concatenate([wood, leaf_mesh]), leaves, info)
-

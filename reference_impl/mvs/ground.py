@@ -40,12 +40,9 @@ def fit_ground_plane(
     """RANSAC + least-squares plane among near-horizontal planes with (almost) nothing below them.
 
     Half of the 3-point samples are drawn from the lowest ``low_fraction`` of the points along ``up``, where the
-    ground is: with uniform samples alone, clouds whose ground is a small part of the points rarely drew three
-    ground points in 500 samples (the 8-view quick-suite cercis and laurel clouds got planes tilted 28 and 9 deg,
-    up to 1.4 m above the true ground; with the low samples all three quick clouds get the true plane within
-    0.2 deg and 3 mm). And since the ground carries the plant, a candidate with more than ``max_below`` of the
-    points lower than 3 ``inlier_dist`` under it is not the ground (a dense horizontal layer of a crown); MVS
-    noise puts up to 8 % of a cloud below the true ground (laurel, 256 px views), hence 0.2.
+    ground is. And since the ground carries the plant, a candidate with more than ``max_below`` of the points lower
+    than 3 ``inlier_dist`` under it is not the ground (a dense horizontal layer of a crown). Measurements behind
+    both defaults: ``docs/tuning/mvs.md``.
 
     Parameters
     ----------

@@ -17,6 +17,7 @@ from plantbench.cameras import Camera, read_cameras
 from plantbench.errors import InputError
 from plantbench.io.atomic import atomic_write, write_json
 from plantbench.io.ply import write_points
+from plantbench.schemas import jsonable as _jsonable
 from plantbench.seeding import rng as seeded_rng
 
 from .filtering import consistency_counts, masked_guided_filter, nearest_views
@@ -221,9 +222,8 @@ def plant_points(pts, nrm, col, *, scale: float, params: MVSParams, remove_groun
     pts, nrm, col, voxel = voxel_downsample(pts, budget, normals=nrm, colours=col)
     n_down, plane = len(pts), None
     if remove_ground and len(pts):
-        # the floater test's neighbourhood: 1 % of the scene scale, or 3 voxels when the voxels are coarser (3
-        # voxels alone broke the plant into "floaters" when the budget barely bound and the voxels were tiny: a
-        # peach with 5 % more depth pixels than the budget lost half its plant points)
+        # the floater test's neighbourhood: 1 % of the scene scale, or 3 voxels when the voxels are coarser (why:
+        # docs/tuning/mvs.md)
         radius = max(3.0 * voxel, 0.01 * scale)
         mask, plane = plant_mask(pts, col, scale=scale, params=params.ground, rng=seeded_rng(seed, "mvs", "ground"),
                                  component_radius=radius)
@@ -240,18 +240,6 @@ def _write_depth(folder: Path, names: list[str], depths: list[np.ndarray], maps:
         extra = {} if maps is None else {"raw_depth": maps[i].depth, "normal": maps[i].normal, "cost": maps[i].cost}
         with atomic_write(folder / f"{Path(name).stem}.npz") as fh:
             np.savez_compressed(fh, depth=np.asarray(d, np.float32), **extra)
-
-
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.floating):
-        return float(obj)
-    return obj
 
 
 class MVS:

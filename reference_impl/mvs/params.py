@@ -2,7 +2,7 @@
 
 Every field that changes the output is here, with its default; :class:`MVSParams` collects them and
 :meth:`MVSParams.from_options` maps a suite's ``[method_options.mvs]`` keywords onto them (unknown keywords are an
-:class:`~plantbench.errors.InputError`).
+:class:`~plantbench.errors.InputError`). What the defaults were measured on: ``docs/tuning/mvs.md``.
 """
 
 from __future__ import annotations
@@ -44,19 +44,10 @@ class DepthParams:
     """Coarse to fine: the sweep and the first ``coarse_iterations`` PatchMatch iterations run on the images
     downsampled by this factor, then ``pm_iterations`` at full resolution, with the checkerboard window
     (``coarse_checker``) at both levels, a random depth as the fine level's fresh candidate (``fine_random_depth``)
-    and ``coarse_max_cost``; 1 runs everything at full resolution with the dense window (the default of sessions
-    3-5, about twice the time). Used only when the coarse image keeps ``coarse_min_size`` pixels on its shorter side.
-
-    Measured on the 20-view 512 px multiview captures (accuracy = median distance to the GT surface / plant height,
-    completeness = GT samples within 1 % of height), peach and maple: full resolution 0.434 % / 77.7 % and 0.412 /
-    74.2; session 5's coarse-to-fine preset (fine level continuing the coarse perturbation schedule, random normal,
-    max cost 0.6) 0.48 / 67.2 and 0.38 / 71.4; this default 0.473 / 76.3 and 0.397 / 77.9. Per-view time and the
-    other species in the closing note of issue 6."""
+    and ``coarse_max_cost``; 1 runs everything at full resolution with the dense window. Used only when the coarse
+    image keeps ``coarse_min_size`` pixels on its shorter side."""
     coarse_min_size: int = 256
-    """Coarse to fine only when the downsampled image's shorter side has at least this many pixels. The quick
-    suite's 256 px views (a 128 px coarse level, where the plants' leaves are sub-pixel) run at full resolution:
-    session 5's preset cost its clouds completeness (2.1, 8.8, 7.5 cm -> 2.7, 10.4, 9.7 cm) and the methods up to
-    0.07 S_T there."""
+    """Coarse to fine only when the downsampled image's shorter side has at least this many pixels."""
     coarse_iterations: int = 2
     """PatchMatch iterations at the coarse scale, before the ``pm_iterations`` at full resolution (coarse to fine
     only)."""
@@ -65,14 +56,9 @@ class DepthParams:
     for r = 2), the sparse sampling of Gipuma (Galliani et al. 2015)."""
     fine_random_depth: bool = True
     """At the fine level of coarse to fine, each pixel's fresh random candidate is a depth (uniform in inverse depth,
-    with its current normal) instead of a normal: the surfaces smaller than a coarse pixel (few-pixel leaves) are
-    in no coarse plane, so neither propagation nor small perturbations reach them. Peach, max cost 0.55: 0.48 % /
-    67.2 % (random normal, max cost 0.6) -> 0.409 / 67.7; a random depth as an eighth candidate beside the random
-    normal gave 0.447 / 71.8 at ~0.2 s more per view."""
+    with its current normal) instead of a normal."""
     coarse_max_cost: float = 0.57
-    """``max_cost`` of coarse to fine, whose final costs come from the 13-sample checkerboard window. Peach, accuracy
-    / completeness: 0.55 -> 0.409 % / 67.7 %, 0.57 -> 0.473 / 76.3 (with the random depth as an eighth candidate:
-    0.55 -> 0.447 / 71.8, 0.56 -> 0.497 / 74.1, 0.575 -> 0.576 / 79.5, 0.6 -> 0.913 / 83.1)."""
+    """``max_cost`` of coarse to fine, whose final costs come from the 13-sample checkerboard window."""
     top_k: int = 2
     """Matching cost = mean of the ``top_k`` best source costs (robust to occlusion in the other sources)."""
     pm_iterations: int = 2
@@ -80,17 +66,11 @@ class DepthParams:
     pm_radius: int = 2
     """PatchMatch window half-size in samples; the window spans (2 r + 1)^2 samples ``pm_step`` pixels apart."""
     pm_step: int = 1
-    """Pixel spacing of the PatchMatch window samples (2 with r = 1 gives the sparse 3 x 3 sampling of a 5 x 5
-    footprint, ~2.5x faster but measurably less accurate on fine texture)."""
+    """Pixel spacing of the PatchMatch window samples (2 with r = 1: a sparse 3 x 3 sampling of a 5 x 5 footprint)."""
     pm_checker: bool = False
-    """Use the checkerboard window (see ``coarse_checker``) at full resolution too. Without a coarse level
-    (full-resolution sweep) it let through far more wrong depths (peach: accuracy 0.44 -> 8.8 % of height, the
-    filter keeping them)."""
+    """Use the checkerboard window (see ``coarse_checker``) at full resolution too."""
     pm_textured_only: bool = False
-    """Refine only the pixels textured enough to keep a depth (~25 % faster on views with sky), the others keeping
-    their sweep plane. Off by default: untextured pixels refined by PatchMatch pass good planes on to their
-    textured neighbours, and without them the quick suite's 256 px clouds lost accuracy (mvs completeness
-    10.1 -> 11.5 cm)."""
+    """Refine only the pixels textured enough to keep a depth, the others keeping their sweep plane."""
     bilateral_sigma_color: float = 0.1
     """Colour sigma of the bilateral support weights (grey levels in [0, 1])."""
     bilateral_sigma_space: float = 3.0
@@ -110,17 +90,14 @@ class FilterParams:
 
     min_consistent: int = 1
     """A depth is kept when at least this many other views agree with it (1: the point is confirmed by two views,
-    the reference and one other; 2 kept 5-9 % of the plant on the 20-view maple captures, whose neighbours are
-    24-48 deg apart and whose leaves are seen through each other)."""
+    the reference and one other)."""
     reproj_px: float = 2.0
-    """Agreement: the forward-backward reprojection error is below this many pixels (2: a pixel found by the
-    ``search_radius`` search maps back about one pixel away from the reference pixel) ..."""
+    """Agreement: the forward-backward reprojection error is below this many pixels ..."""
     rel_depth: float = 0.01
     """... and the relative depth difference is below this fraction."""
     search_radius: int = 1
     """The other view agrees when any of its pixels within this radius (Chebyshev, pixels) of the projection
-    passes the test (0: nearest pixel only). Visible leaf fragments are ~3 px wide, so the nearest pixel often holds
-    another leaf although the view saw the same surface next to it."""
+    passes the test (0: nearest pixel only)."""
     consistency_views: int = 8
     """Number of views (nearest by viewing direction) against which each reference is checked."""
     guided_radius: int = 2
@@ -143,7 +120,7 @@ class FusionParams:
     """Relative depth tolerance of the free-space test."""
     pre_ground_factor: int = 4
     """Before ground removal the cloud is downsampled to this many times ``points`` only; the final downsampling
-    to ``points`` comes after it, so the budget is spent on the plant rather than on the ground."""
+    to ``points`` comes after it."""
 
 
 @dataclass(frozen=True)
@@ -172,28 +149,21 @@ class GroundParams:
 
 @dataclass(frozen=True)
 class SfMParams:
-    """pycolmap feature extraction, matching and incremental mapping in SfM mode (``poses='sfm'``).
-
-    COLMAP's defaults are tuned for photographs with thousands of strong corners; our 512 px plant views give
-    ~1.4k SIFT keypoints each (thin branches, a ground texture minified several times) and wide baselines (20
-    views spread over a hemisphere, ~25-30 deg between nearest views). With the defaults, peach and maple
-    registered 2 of 20 views. Measured on the multiview captures (20 views, 512 px, known intrinsics), views
-    registered with each change added in turn (peach): defaults 2; peak 0.002 2; + mapper thresholds 30/15 12;
-    + domain-size pooling 15; + guided matching 18; + affine shape and 4 scales per octave 20 (maple 20, cercis 18).
-    """
+    """pycolmap feature extraction, matching and incremental mapping in SfM mode (``poses='sfm'``); COLMAP's
+    defaults where a field gives none."""
 
     peak_threshold: float = 0.002
-    """SIFT peak (contrast) threshold (COLMAP default 0.0067): more keypoints on the low-contrast foliage."""
+    """SIFT peak (contrast) threshold (COLMAP default 0.0067)."""
     octave_resolution: int = 4
     """SIFT scales per octave (COLMAP default 3)."""
     domain_size_pooling: bool = True
-    """DSP-SIFT descriptors (Dong and Soatto 2015), more stable across wide baselines."""
+    """DSP-SIFT descriptors (Dong and Soatto 2015; COLMAP default off)."""
     estimate_affine_shape: bool = True
-    """Affine-covariant keypoints (the ground is seen at grazing, view-dependent angles)."""
+    """Affine-covariant keypoints (COLMAP default off)."""
     max_num_features: int = 8192
-    """Most keypoints per image."""
+    """Most keypoints per image (COLMAP default 8192)."""
     guided_matching: bool = True
-    """Re-match under the verified two-view geometry (recovers matches the ratio test dropped)."""
+    """Re-match under the verified two-view geometry (recovers matches the ratio test dropped; COLMAP default off)."""
     init_min_num_inliers: int = 30
     """Verified matches needed by the initial pair (COLMAP default 100)."""
     abs_pose_min_num_inliers: int = 15

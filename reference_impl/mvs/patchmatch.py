@@ -20,7 +20,7 @@ by photo-consistency. We do it in two stages:
    full-resolution pixel then starts from the plane of the coarse pixel it lies in and PatchMatch refines at full
    resolution, where the fresh random candidate is a random depth instead of a random normal (surfaces smaller
    than a coarse pixel are in no coarse plane). Both levels evaluate the checkerboard half of the window (Gipuma).
-   Measured in :class:`~.params.DepthParams`.
+   Measured in ``docs/tuning/mvs.md``.
 
 The graph-cut global optimisation of the seed (Eq. 4) is replaced by this local PatchMatch plus the multi-view
 consistency filter of :mod:`.filtering` (see the module notes there). All pixels are processed at once as Dr.Jit
@@ -468,7 +468,6 @@ class _Engine:
         normal at its depth: how the fine level of coarse to fine finds surfaces smaller than a coarse pixel, which no
         coarse plane holds."""
         dr, jl, p = self.dr, self.jl, self.p
-        near_o, far_o = self._opaque(near), self._opaque(far)
         w, h, n = self.w, self.h, self.n
         d = jl.Float(depth0.ravel().astype(np.float32))
         n0 = normal0.reshape(-1, 3).astype(np.float32)
@@ -481,66 +480,101 @@ class _Engine:
         for pidx, win in zip(colours, windows):  # the starting planes' costs
             dr.scatter(cost, self._plane_cost(win, *(dr.gather(jl.Float, a, pidx) for a in (d, nx, ny, nz))), pidx)
         dr.eval(cost)
-        inv_span = 1.0 / near - 1.0 / far
-        kinv = self.kinv_l
+        planes = (d, nx, ny, nz, cost)
         for it in range(p.pm_iterations if iterations is None else iterations):
-            scale = 0.5**it
-            for c in (0, 1):
-                pidx = colours[c]
-                m = dr.width(pidx)
-                xi, yi = jl.Int32(pidx % w), jl.Int32(pidx // w)
-                xf, yf = jl.Float(xi), jl.Float(yi)
-                rx = kinv[0, 0] * xf + kinv[0, 1] * yf + kinv[0, 2]
-                ry = kinv[1, 1] * yf + kinv[1, 2]
-                rn = dr.sqrt(rx * rx + ry * ry + 1.0)
-                cd, cnx, cny, cnz, cc = (dr.gather(jl.Float, a, pidx) for a in (d, nx, ny, nz, cost))
-                dr.eval(cd, cnx, cny, cnz, cc, rx, ry, rn)
-                cands = []
-                for ox, oy in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-                    qx = dr.clip(xi + ox, 0, w - 1)
-                    qy = dr.clip(yi + oy, 0, h - 1)
-                    qi = jl.UInt32(qx + qy * w)
-                    qd, qnx, qny, qnz = (dr.gather(jl.Float, a, qi) for a in (d, nx, ny, nz))
-                    qxf, qyf = jl.Float(qx), jl.Float(qy)
-                    qrx = kinv[0, 0] * qxf + kinv[0, 1] * qyf + kinv[0, 2]
-                    qry = kinv[1, 1] * qyf + kinv[1, 2]
-                    rho = qd * (qnx * qrx + qny * qry + qnz)
-                    dd = rho / (qnx * rx + qny * ry + qnz)
-                    cands.append((dd, qnx, qny, qnz))
-                # random perturbations: inverse depth within +-scale * 2 % of the range, normal within +-scale * 0.6
-                rnd = [jl.Float(r) for r in rng.uniform(-1.0, 1.0, (5, m)).astype(np.float32)]
-                sc = self._opaque(scale)
-                dq = rnd[0] * self._opaque(0.02 * scale * inv_span)
-                pd = 1.0 / dr.maximum(1.0 / cd + dq, 1e-6)
-                cands.append((pd, cnx + rnd[1] * (0.6 * sc), cny + rnd[2] * (0.6 * sc), cnz + rnd[3] * (0.6 * sc)))
-                cands.append((cd, cnx + rnd[4] * (0.3 * sc), cny - rnd[1] * (0.3 * sc), cnz))
-                if random_depth:  # a fresh random depth (uniform in inverse depth) with the current normal
-                    inv_d = rng.uniform(1.0 / far, 1.0 / near, m).astype(np.float32)
-                    cands.append((jl.Float(1.0 / inv_d), cnx, cny, cnz))
-                else:  # a fresh random normal (uniform on the sphere, flipped to face the camera) at the current depth
-                    gz = rng.normal(size=(3, m)).astype(np.float32)
-                    cands.append((cd, jl.Float(gz[0]), jl.Float(gz[1]), jl.Float(gz[2])))
-                for dd, ex, ey, ez in cands:
-                    norm = dr.sqrt(ex * ex + ey * ey + ez * ez)
-                    ex, ey, ez = ex / norm, ey / norm, ez / norm
-                    facing = ex * rx + ey * ry + ez
-                    # the normal must face the camera; flip it if not
-                    sgn = dr.select(facing > 0, -1.0, 1.0)
-                    ex, ey, ez = ex * sgn, ey * sgn, ez * sgn
-                    ok = (dd > near_o) & (dd < far_o) & dr.isfinite(dd) & (dr.abs(facing) > 0.1 * rn)
-                    dd = dr.select(ok, dd, cd)
-                    dr.eval(dd, ex, ey, ez, ok)
-                    ccost = self._plane_cost(windows[c], dd, ex, ey, ez)
-                    dr.eval(ccost)
-                    better = ok & (ccost < cc)
-                    cd, cnx, cny, cnz = (dr.select(better, a, b) for a, b in ((dd, cd), (ex, cnx), (ey, cny), (ez, cnz)))
-                    cc = dr.select(better, ccost, cc)
-                    dr.eval(cd, cnx, cny, cnz, cc)
-                for arr, val in ((d, cd), (nx, cnx), (ny, cny), (nz, cnz), (cost, cc)):
-                    dr.scatter(arr, val, pidx)
-                dr.eval(d, nx, ny, nz, cost)
-        out = [np.asarray(a, np.float32).reshape(h, w) for a in (d, nx, ny, nz, cost)]
+            for pidx, win in zip(colours, windows):
+                self._half_sweep(planes, pidx, win, near, far, rng, 0.5**it, random_depth)
+        out = [np.asarray(a, np.float32).reshape(h, w) for a in planes]
         return out[0], np.stack(out[1:4], axis=-1), out[4]
+
+    def _half_sweep(self, planes: tuple, pidx, win, near: float, far: float, rng: np.random.Generator, scale: float,
+                    random_depth: bool) -> None:
+        """One colour of a red-black iteration: the pixels ``pidx`` try their neighbours' planes and random ones
+        (perturbations by ``scale``) and keep the cheapest; ``planes`` (depth, normal x, y, z, cost) are updated in
+        place."""
+        dr, jl = self.dr, self.jl
+        w = self.w
+        kinv = self.kinv_l
+        xi, yi = jl.Int32(pidx % w), jl.Int32(pidx // w)
+        xf, yf = jl.Float(xi), jl.Float(yi)
+        rx = kinv[0, 0] * xf + kinv[0, 1] * yf + kinv[0, 2]
+        ry = kinv[1, 1] * yf + kinv[1, 2]
+        rn = dr.sqrt(rx * rx + ry * ry + 1.0)
+        cur = tuple(dr.gather(jl.Float, a, pidx) for a in planes)
+        dr.eval(*cur, rx, ry, rn)
+        cands = self._neighbour_planes(planes, xi, yi, rx, ry)
+        cands += self._random_planes(cur, dr.width(pidx), near, far, rng, scale, random_depth)
+        best = self._cheapest(win, cands, cur, (rx, ry, rn), near, far)
+        for arr, val in zip(planes, best, strict=True):
+            dr.scatter(arr, val, pidx)
+        dr.eval(*planes)
+
+    def _neighbour_planes(self, planes: tuple, xi, yi, rx, ry) -> list[tuple]:
+        """Propagation: the planes of the four neighbours of pixels (``xi``, ``yi``) (rays ``rx``, ``ry``), each as
+        (depth along the pixel's own ray, normal x, y, z)."""
+        dr, jl = self.dr, self.jl
+        d, nx, ny, nz, _ = planes
+        w, h = self.w, self.h
+        kinv = self.kinv_l
+        cands = []
+        for ox, oy in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            qx = dr.clip(xi + ox, 0, w - 1)
+            qy = dr.clip(yi + oy, 0, h - 1)
+            qi = jl.UInt32(qx + qy * w)
+            qd, qnx, qny, qnz = (dr.gather(jl.Float, a, qi) for a in (d, nx, ny, nz))
+            qxf, qyf = jl.Float(qx), jl.Float(qy)
+            qrx = kinv[0, 0] * qxf + kinv[0, 1] * qyf + kinv[0, 2]
+            qry = kinv[1, 1] * qyf + kinv[1, 2]
+            rho = qd * (qnx * qrx + qny * qry + qnz)
+            dd = rho / (qnx * rx + qny * ry + qnz)
+            cands.append((dd, qnx, qny, qnz))
+        return cands
+
+    def _random_planes(self, cur: tuple, m: int, near: float, far: float, rng: np.random.Generator, scale: float,
+                       random_depth: bool) -> list[tuple]:
+        """Random search around the current planes ``cur`` of ``m`` pixels: two perturbations (inverse depth within
+        +-scale * 2 % of the range, normal within +-scale * 0.6) and a fresh random depth or normal."""
+        dr, jl = self.dr, self.jl
+        cd, cnx, cny, cnz, _ = cur
+        inv_span = 1.0 / near - 1.0 / far
+        rnd = [jl.Float(r) for r in rng.uniform(-1.0, 1.0, (5, m)).astype(np.float32)]
+        sc = self._opaque(scale)
+        dq = rnd[0] * self._opaque(0.02 * scale * inv_span)
+        pd = 1.0 / dr.maximum(1.0 / cd + dq, 1e-6)
+        cands = [(pd, cnx + rnd[1] * (0.6 * sc), cny + rnd[2] * (0.6 * sc), cnz + rnd[3] * (0.6 * sc)),
+                 (cd, cnx + rnd[4] * (0.3 * sc), cny - rnd[1] * (0.3 * sc), cnz)]
+        if random_depth:  # a fresh random depth (uniform in inverse depth) with the current normal
+            inv_d = rng.uniform(1.0 / far, 1.0 / near, m).astype(np.float32)
+            cands.append((jl.Float(1.0 / inv_d), cnx, cny, cnz))
+        else:  # a fresh random normal (uniform on the sphere, flipped to face the camera) at the current depth
+            gz = rng.normal(size=(3, m)).astype(np.float32)
+            cands.append((cd, jl.Float(gz[0]), jl.Float(gz[1]), jl.Float(gz[2])))
+        return cands
+
+    def _cheapest(self, win, cands: list[tuple], cur: tuple, rays: tuple, near: float, far: float) -> tuple:
+        """The current planes ``cur`` (depth, normal x, y, z, cost) replaced by each candidate that is valid (normal
+        facing the camera after flipping, depth inside (near, far)) and cheaper, in turn."""
+        dr = self.dr
+        near_o, far_o = self._opaque(near), self._opaque(far)
+        rx, ry, rn = rays
+        cd, cnx, cny, cnz, cc = cur
+        for dd, ex, ey, ez in cands:
+            norm = dr.sqrt(ex * ex + ey * ey + ez * ez)
+            ex, ey, ez = ex / norm, ey / norm, ez / norm
+            facing = ex * rx + ey * ry + ez
+            # the normal must face the camera; flip it if not
+            sgn = dr.select(facing > 0, -1.0, 1.0)
+            ex, ey, ez = ex * sgn, ey * sgn, ez * sgn
+            ok = (dd > near_o) & (dd < far_o) & dr.isfinite(dd) & (dr.abs(facing) > 0.1 * rn)
+            dd = dr.select(ok, dd, cd)
+            dr.eval(dd, ex, ey, ez, ok)
+            ccost = self._plane_cost(win, dd, ex, ey, ez)
+            dr.eval(ccost)
+            better = ok & (ccost < cc)
+            cd, cnx, cny, cnz = (dr.select(better, a, b) for a, b in ((dd, cd), (ex, cnx), (ey, cny), (ez, cnz)))
+            cc = dr.select(better, ccost, cc)
+            dr.eval(cd, cnx, cny, cnz, cc)
+        return cd, cnx, cny, cnz, cc
 
 
 def _scaled_camera(cam: Camera, factor: int) -> Camera:
@@ -605,16 +639,7 @@ def estimate_depth(
     window is textureless)
     """
     p = params or DepthParams()
-    if not src_images:
-        raise InputError("estimate_depth needs at least one source view")
-    if len(src_images) != len(src_cams):
-        raise InputError("estimate_depth: one camera per source image")
-    if p.sweep_window % 2 != 1 or p.sweep_window < 3:
-        raise InputError(f"sweep_window must be odd and >= 3, got {p.sweep_window}")
-    if not (isinstance(p.coarse_scale, int) and p.coarse_scale >= 1):
-        raise InputError(f"coarse_scale must be an integer >= 1, got {p.coarse_scale!r}")
-    if not (isinstance(p.coarse_min_size, int) and p.coarse_min_size >= 1):
-        raise InputError(f"coarse_min_size must be an integer >= 1, got {p.coarse_min_size!r}")
+    _check_depth_inputs(src_images, src_cams, p)
     ref = to_gray(ref_image)
     if ref.shape != (ref_cam.height, ref_cam.width):
         raise InputError(f"reference image is {ref.shape[::-1]}, its camera says {(ref_cam.width, ref_cam.height)}")
@@ -626,20 +651,8 @@ def estimate_depth(
     f = p.coarse_scale
     coarse = f > 1 and min(ref.shape) // f >= p.coarse_min_size
     if coarse:
-        # coarse to fine: the sweep and the first ``coarse_iterations`` of PatchMatch on the images downsampled by f
-        # (area averaging), then the planes carried to full resolution and refined there, with random depths to
-        # find what the coarse level could not resolve
-        import cv2
-
-        small = [cv2.resize(g, (g.shape[1] // f, g.shape[0] // f), interpolation=cv2.INTER_AREA) for g in [ref, *srcs]]
-        cam_s = _scaled_camera(ref_cam, f)
-        eng_s = _Engine(small[0], small[1:], cam_s, [_scaled_camera(c, f) for c in src_cams], p,
-                        checker=p.coarse_checker)
-        depth, cost, normal_cam = eng_s.initial_planes(depths)
-        if refine and p.coarse_iterations > 0:
-            depth, normal_cam, cost = eng_s.patchmatch(depth.astype(np.float32), normal_cam, near, far, rng,
-                                                       iterations=p.coarse_iterations)
-        depth, normal_cam, cost = _upsample_planes(depth, normal_cam, cost, cam_s, ref_cam, f)
+        depth, cost, normal_cam = _coarse_planes(ref, srcs, ref_cam, src_cams, depths, (near, far), p, rng=rng,
+                                                 refine=refine)
         max_cost = p.coarse_max_cost
     else:
         eng = _Engine(ref, srcs, ref_cam, src_cams, p)
@@ -656,6 +669,49 @@ def estimate_depth(
         normal_cam = np.zeros(depth.shape + (3,), np.float32)
         normal_cam[..., 2] = -1.0
     keep = (cost < max_cost) & textured & np.isfinite(depth) & (depth > near) & (depth < far)
+    return _depth_map(depth, normal_cam, cost, keep, ref_cam)
+
+
+def _check_depth_inputs(src_images: list[np.ndarray], src_cams: list[Camera], p: DepthParams) -> None:
+    """InputError unless there is a camera per source image (at least one) and the sweep window and coarse-to-fine
+    settings are usable."""
+    if not src_images:
+        raise InputError("estimate_depth needs at least one source view")
+    if len(src_images) != len(src_cams):
+        raise InputError("estimate_depth: one camera per source image")
+    if p.sweep_window % 2 != 1 or p.sweep_window < 3:
+        raise InputError(f"sweep_window must be odd and >= 3, got {p.sweep_window}")
+    if not (isinstance(p.coarse_scale, int) and p.coarse_scale >= 1):
+        raise InputError(f"coarse_scale must be an integer >= 1, got {p.coarse_scale!r}")
+    if not (isinstance(p.coarse_min_size, int) and p.coarse_min_size >= 1):
+        raise InputError(f"coarse_min_size must be an integer >= 1, got {p.coarse_min_size!r}")
+
+
+def _coarse_planes(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_cams: list[Camera],
+                   depths: np.ndarray, depth_range: tuple[float, float], p: DepthParams, *, rng: np.random.Generator,
+                   refine: bool):
+    """The coarse level of coarse to fine: the sweep and the first ``coarse_iterations`` of PatchMatch on the images
+    downsampled by ``coarse_scale`` (area averaging), the planes carried to full resolution (depth, cost, camera-
+    frame normal), where PatchMatch refines them with random depths to find what the coarse level could not
+    resolve."""
+    import cv2
+
+    f = p.coarse_scale
+    near, far = depth_range
+    small = [cv2.resize(g, (g.shape[1] // f, g.shape[0] // f), interpolation=cv2.INTER_AREA) for g in [ref, *srcs]]
+    cam_s = _scaled_camera(ref_cam, f)
+    eng_s = _Engine(small[0], small[1:], cam_s, [_scaled_camera(c, f) for c in src_cams], p, checker=p.coarse_checker)
+    depth, cost, normal_cam = eng_s.initial_planes(depths)
+    if refine and p.coarse_iterations > 0:
+        depth, normal_cam, cost = eng_s.patchmatch(depth.astype(np.float32), normal_cam, near, far, rng,
+                                                   iterations=p.coarse_iterations)
+    depth, normal_cam, cost = _upsample_planes(depth, normal_cam, cost, cam_s, ref_cam, f)
+    return depth, cost, normal_cam
+
+
+def _depth_map(depth: np.ndarray, normal_cam: np.ndarray, cost: np.ndarray, keep: np.ndarray, ref_cam: Camera
+               ) -> DepthMap:
+    """The DepthMap of the kept pixels: NaN depth and normal elsewhere, normals turned into world coordinates."""
     depth = np.where(keep, depth, np.nan).astype(np.float32)
     normal = (normal_cam.reshape(-1, 3) @ ref_cam.R).reshape(normal_cam.shape)  # camera -> world: R^T n
     normal = np.where(keep[..., None], normal, np.nan).astype(np.float32)

@@ -11,9 +11,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from plantbench.io.plantio import write_reconstruction
+from plantbench.schemas import params_from_options
 from plantbench.seeding import rng as seeded_rng
 from reference_impl.common.inputs import load_points
-from reference_impl.common.options import params_from_options
 from reference_impl.xu.pipeline import XuParams, XuResult, reconstruct_xu
 
 __all__ = ["Xu", "XuParams", "reconstruct_xu"]

@@ -14,25 +14,21 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from plantbench.errors import InputError
+from plantbench.geometry.vectors import levels, unit
 from plantbench.plant import Leaf, Skeleton, TriMesh
 from reference_impl.common.geometry import branch_mesh, leaf_frames, quad_leaves
-from reference_impl.common.graph import (
-    children_csr,
-    median_spacing,
-    radius_graph,
-    subtree_lengths,
-    tree_levels,
-    voxel_downsample,
-)
-from reference_impl.common.ground import GroundParams, remove_ground
-from reference_impl.common.inputs import MIN_POINTS, check_points
+from reference_impl.common.graph import children_csr, median_spacing, radius_graph, subtree_lengths, voxel_downsample
+from reference_impl.common.ground import Ground
+from reference_impl.common.inputs import plant_height, split_ground
 from reference_impl.common.radii import murray_angle, wbe_murray_radii
-from reference_impl.common.roots import anchor_roots, find_roots, stem_radius
-from reference_impl.common.skeleton_ops import branch_orders, hermite_smooth, prune_short_tips, remove_nodes, unit
-from reference_impl.xu.skeleton import BinSkeleton, bin_skeleton, probe_extend
+from reference_impl.common.roots import anchor_roots, find_roots, stem_radii
+from reference_impl.common.skeleton_ops import branch_orders, hermite_smooth, prune_short_tips, remove_nodes
+from reference_impl.xu.skeleton import bin_skeleton, probe_extend
 from reference_impl.xu.synthesis import (
+    SynthesisResult,
     axil_angles,
     leaf_locations,
+    node_directions,
     prune_bare_twigs,
     support,
     synthesize,
@@ -180,7 +176,7 @@ def _stub_root_trees(positions: np.ndarray, parents: np.ndarray, min_length: flo
     drop = np.zeros(len(parents), bool)
     stub = roots[(w[roots] < min_length) & (roots != roots[np.argmax(w[roots])])]
     drop[stub] = True
-    for idx in tree_levels(parents):
+    for idx in levels(parents):
         c = idx[parents[idx] >= 0]
         drop[c] |= drop[parents[c]]
     return keep & ~drop
@@ -190,19 +186,108 @@ def _main_components(labels: np.ndarray, roots: np.ndarray) -> np.ndarray:
     return np.isin(labels, np.unique(labels[roots]))
 
 
+def _scanned_skeleton(cloud: np.ndarray, cloud_height: np.ndarray, height: float, radius: float, width: float,
+                      gap: float, params: XuParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """Sections 4.1-4.2: the main skeleton from the root subgraph(s) of the radius graph, extended by bi-directional
+    probing across gaps up to ``gap``, then cleaned of bin noise [S]. Returns its positions and parents, the leaf
+    points (the cloud's points no node explains) and statistics."""
+    graph = radius_graph(cloud, radius)
+    ncomp, labels = csgraph.connected_components(graph, directed=False)
+    roots = find_roots(cloud, cloud_height, graph, slab=params.root_slab_fraction * height + radius,
+                       group_cell=max(params.plant_gap_fraction * height, 2 * radius))
+    in_main = _main_components(labels, roots)
+    main = bin_skeleton(cloud, graph, np.flatnonzero(in_main), roots, width)
+    stats = {"subgraphs": int(ncomp), "roots": len(roots), "main_nodes": len(main.positions)}
+    ext, attached, joined = probe_extend(cloud, graph, labels, main, in_main, width=width,
+                                         cone_deg=params.cone_angle_deg, gap=gap,
+                                         max_geodesic=params.probe_height_fraction * height)
+    stats["joined_subgraphs"] = joined
+    # bin-noise spurs go; their points count as leaf points with the unattached ones
+    keep = prune_short_tips(ext.positions, ext.parents, params.spur_bins * width)
+    # ... and so do whole trees shorter than the spur length hanging from extra roots: a stem base scanned from
+    # several sides splits into radius-graph components, each found as a stem base (the longest tree always stays)
+    keep &= _stub_root_trees(ext.positions, ext.parents, params.spur_bins * width)
+    par, index = remove_nodes(ext.parents, keep)
+    pos = ext.positions[keep]
+    pnode = np.where(ext.point_node >= 0, index[np.maximum(ext.point_node, 0)], -1)
+    stats["scanned_nodes"] = len(pos)
+    return pos, par, cloud[(~attached) | (attached & (pnode < 0))], stats
+
+
+def _synthesis(pos: np.ndarray, par: np.ndarray, leaf_pts: np.ndarray, *, d0: float, density_range: float,
+               group: float, params: XuParams) -> tuple[SynthesisResult, np.ndarray, np.ndarray, tuple, dict]:
+    """Section 4.3: leaf locations from the leaf points, the skeleton's axil-angle statistics and the skeleton
+    synthesis towards the leaf locations. Returns the synthesis, the leaf locations and their densities, the
+    two-sigma axil interval (for the support tests that follow) and statistics."""
+    locs, density = leaf_locations(leaf_pts, group, density_range)
+    axil = axil_angles(pos, par)
+    mu, sd = (float(axil.mean()), float(axil.std())) if len(axil) >= 3 else params.default_axil_deg
+    sd = max(sd, 1.0)
+    i1, i2 = (mu - sd, mu + sd), (mu - 2 * sd, mu + 2 * sd)
+    syn = synthesize(pos, par, locs, density, d0=d0, interval=i1, group=group,
+                     iterations=params.synthesis_iterations, max_nodes=params.max_nodes)
+    stats = {"leaf_locations": len(locs), "axil_mean": mu, "axil_std": sd, "synthesis_iterations": syn.iterations,
+             "synthesized_branches": syn.branches}
+    return syn, locs, density, i2, stats
+
+
+def _prune_and_smooth(syn: SynthesisResult, locs: np.ndarray, *, d0: float, interval: tuple, width: float,
+                      params: XuParams, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Section 4.4: synthesised twigs that support no leaf location are pruned (``bare_twig_keep`` of them kept),
+    then sharp transitions are smoothed with Hermite curves. Returns positions, parents and the kept bare twigs'
+    tips."""
+    pos, par = syn.positions, syn.parents
+    snode, _, sup = support(locs, pos, par, d0=d0, interval=interval)
+    supporting = np.zeros(len(pos), bool)
+    supporting[snode[sup]] = True
+    keep, bare_tips = prune_bare_twigs(pos, par, syn.synthetic, supporting, params.bare_twig_keep, rng)
+    par, index = remove_nodes(par, keep)
+    pos = pos[keep]
+    bare_tips = index[bare_tips]
+    bare_pos = pos[bare_tips[bare_tips >= 0]]
+    pos, par, _ = hermite_smooth(pos, par, min_angle_deg=params.hermite_min_angle_deg, min_spacing=width)
+    return pos, par, bare_pos
+
+
+def _stem_axes(pos: np.ndarray, par: np.ndarray) -> np.ndarray:
+    """(k, 3) unit direction from each root to its first child (up for a root without children)."""
+    axes = []
+    for r in np.flatnonzero(par < 0):
+        kids = np.flatnonzero(par == r)
+        axes.append(unit(pos[kids[0]] - pos[r]) if len(kids) else np.array([0.0, 0.0, 1.0]))
+    return np.asarray(axes, float).reshape(-1, 3)
+
+
+def _radii_and_angles(pos: np.ndarray, par: np.ndarray, plant: np.ndarray, ground: Ground, height: float,
+                      radius: float, params: XuParams) -> tuple[Skeleton, np.ndarray, int]:
+    """Section 5.2: radii by Eq. 4-5 anchored on the base radius fitted to the scan, branching angles adjusted
+    towards Eq. 3, then a ground node under each root. Returns the skeleton, the base radii and the number of
+    adjusted branches."""
+    min_r = params.min_radius_fraction * height
+    rr = stem_radii(plant, pos[par < 0], _stem_axes(pos, par), offset=radius,
+                    length=params.trunk_fit_fraction * height, max_radius=0.1 * height, fallback=radius,
+                    min_radius=min_r)
+    radii = wbe_murray_radii(pos, par, rr, wbe_exponent=params.wbe_exponent,
+                             murray_exponent=params.murray_exponent, min_radius=min_r)
+    pos, par, radii, nadj = adjust_branch_angles(pos, par, radii, tolerance_deg=params.angle_tolerance_deg,
+                                                 shift_limit=params.angle_shift_limit)
+    gz = pos[:, 0] * ground.coef[0] + pos[:, 1] * ground.coef[1] + ground.coef[2]
+    pos, par, radii, _ = anchor_roots(pos, par, radii, gz, min_gap=0.25 * radius)
+    return Skeleton(pos, np.maximum(radii, min_r), par, branch_orders(par, radii)), rr, nadj
+
+
 def reconstruct_xu(points: np.ndarray, rng: np.random.Generator, params: XuParams = XuParams()) -> XuResult:
     """Skeleton, branch mesh + leaf quads, and leaves from a cloud (metres, Z up, ground near z = 0).
 
     points : (n, 3) float. Raises InputError for too few valid points or non-finite coordinates.
+
+    The steps: ground removal and the paper's lengths scaled to the plant; the scanned skeleton (sections 4.1-4.2,
+    :func:`_scanned_skeleton`); leaf locations and skeleton synthesis (4.3, :func:`_synthesis`); pruning of bare
+    synthesised twigs and Hermite smoothing (4.4, :func:`_prune_and_smooth`); radii and branching angles (5.2,
+    :func:`_radii_and_angles`); leaf quads (6, :func:`_leaf_quads`) and the branch mesh.
     """
-    pts = check_points(points)
-    ground = remove_ground(pts, rng, GroundParams())
-    plant = pts[ground.keep]
-    if len(plant) < MIN_POINTS:
-        raise InputError(f"only {len(plant)} points above the ground; at least {MIN_POINTS} are needed")
-    height = float(ground.height(plant).max())
-    if not height > 0:
-        raise InputError("the cloud has no height above the ground plane")
+    pts, ground, plant = split_ground(points, rng)
+    _, height = plant_height(plant, ground)
     s = height / params.reference_height
     spacing = median_spacing(plant)
     radius = max(params.neighbourhood * s, params.min_spacing_factor * spacing)
@@ -211,77 +296,18 @@ def reconstruct_xu(points: np.ndarray, rng: np.random.Generator, params: XuParam
         raise InputError(f"the cloud collapses to {len(cloud)} cells; too small to skeletonise")
     width = params.bin_factor * radius
     d0, dens_r, group = params.support_distance * s, params.density_range * s, params.leaf_group * s
-    gap = params.max_gap * s
     info: dict = {"points": len(pts), "plant_points": len(plant), "neighbourhood": radius, "vertices": len(cloud)}
 
-    # 4.1 main skeleton from the root subgraph(s)
-    graph = radius_graph(cloud, radius)
-    ncomp, labels = csgraph.connected_components(graph, directed=False)
-    h = ground.height(cloud)
-    roots = find_roots(cloud, h, graph, slab=params.root_slab_fraction * height + radius,
-                       group_cell=max(params.plant_gap_fraction * height, 2 * radius))
-    in_main = _main_components(labels, roots)
-    main = bin_skeleton(cloud, graph, np.flatnonzero(in_main), roots, width)
-    info.update(subgraphs=int(ncomp), roots=len(roots), main_nodes=len(main.positions))
-
-    # 4.2 bi-directional probing
-    ext, attached, joined = probe_extend(cloud, graph, labels, main, in_main, width=width,
-                                         cone_deg=params.cone_angle_deg, gap=gap,
-                                         max_geodesic=params.probe_height_fraction * height)
-    info["joined_subgraphs"] = joined
-    # clean-up [S]: bin-noise spurs go; their points count as leaf points with the unattached ones
-    keep = prune_short_tips(ext.positions, ext.parents, params.spur_bins * width)
-    # ... and so do whole trees shorter than the spur length hanging from extra roots: a stem base scanned from
-    # several sides splits into radius-graph components, each found as a stem base (the longest tree always stays)
-    keep &= _stub_root_trees(ext.positions, ext.parents, params.spur_bins * width)
-    new_par, index = remove_nodes(ext.parents, keep)
-    pos = ext.positions[keep]
-    par = new_par
-    pnode = np.where(ext.point_node >= 0, index[np.maximum(ext.point_node, 0)], -1)
-    leaf_pts = cloud[(~attached) | (attached & (pnode < 0))]
-    info["scanned_nodes"] = len(pos)
-
-    # 4.3 leaf locations, axil statistics, synthesis
-    locs, density = leaf_locations(leaf_pts, group, dens_r)
-    axil = axil_angles(pos, par)
-    mu, sd = (float(axil.mean()), float(axil.std())) if len(axil) >= 3 else params.default_axil_deg
-    sd = max(sd, 1.0)
-    i1, i2 = (mu - sd, mu + sd), (mu - 2 * sd, mu + 2 * sd)
-    info.update(leaf_locations=len(locs), axil_mean=mu, axil_std=sd)
-    syn = synthesize(pos, par, locs, density, d0=d0, interval=i1, group=group,
-                     iterations=params.synthesis_iterations, max_nodes=params.max_nodes)
-    pos, par, synthetic = syn.positions, syn.parents, syn.synthetic
-    info.update(synthesis_iterations=syn.iterations, synthesized_branches=syn.branches)
-
-    # 4.4 pruning of bare synthesised twigs (25 % kept), then Hermite smoothing
-    snode, _, sup = support(locs, pos, par, d0=d0, interval=i2)
-    supporting = np.zeros(len(pos), bool)
-    supporting[snode[sup]] = True
-    keep, bare_tips = prune_bare_twigs(pos, par, synthetic, supporting, params.bare_twig_keep, rng)
-    par, index = remove_nodes(par, keep)
-    pos, synthetic = pos[keep], synthetic[keep]
-    bare_tips = index[bare_tips]
-    bare_pos = pos[bare_tips[bare_tips >= 0]]
-    pos, par, _ = hermite_smooth(pos, par, min_angle_deg=params.hermite_min_angle_deg, min_spacing=width)
-
-    # 5.2 radii (Eq. 4, 5) anchored on the scanned base radius, then branching angles (Eq. 3)
-    min_r = params.min_radius_fraction * height
-    rr = []
-    for r in np.flatnonzero(par < 0):
-        kids = np.flatnonzero(par == r)
-        axis = unit(pos[kids[0]] - pos[r]) if len(kids) else np.array([0.0, 0.0, 1.0])
-        rad, _ = stem_radius(plant, pos[r] - axis * radius, axis, length=params.trunk_fit_fraction * height,
-                             max_radius=0.1 * height, fallback=radius)
-        rr.append(max(rad, min_r))
-    rr = np.asarray(rr)
-    radii = wbe_murray_radii(pos, par, rr, wbe_exponent=params.wbe_exponent,
-                             murray_exponent=params.murray_exponent, min_radius=min_r)
-    pos, par, radii, nadj = adjust_branch_angles(pos, par, radii, tolerance_deg=params.angle_tolerance_deg,
-                                                 shift_limit=params.angle_shift_limit)
-    info["angles_adjusted"] = nadj
-    gz = pos[:, 0] * ground.coef[0] + pos[:, 1] * ground.coef[1] + ground.coef[2]
-    pos, par, radii, _ = anchor_roots(pos, par, radii, gz, min_gap=0.25 * radius)
-    skeleton = Skeleton(pos, np.maximum(radii, min_r), par, branch_orders(par, radii))
+    pos, par, leaf_pts, stats = _scanned_skeleton(cloud, ground.height(cloud), height, radius, width,
+                                                  params.max_gap * s, params)
+    info.update(stats)
+    syn, locs, density, i2, stats = _synthesis(pos, par, leaf_pts, d0=d0, density_range=dens_r, group=group,
+                                               params=params)
+    info.update(stats)
+    pos, par, bare_pos = _prune_and_smooth(syn, locs, d0=d0, interval=i2, width=width, params=params, rng=rng)
+    skeleton, rr, adjusted = _radii_and_angles(pos, par, plant, ground, height, radius, params)
+    info["angles_adjusted"] = adjusted
+    pos, par = skeleton.positions, skeleton.parents
 
     # 6 leaves: a quad per supported location on its nearest feasible node, plus clusters on kept bare twigs
     snode, _, sup = support(locs, pos, par, d0=d0, interval=i2)
@@ -294,8 +320,6 @@ def reconstruct_xu(points: np.ndarray, rng: np.random.Generator, params: XuParam
 def _leaf_quads(locs, density, snode, pos, par, bare_pos, size, params: XuParams, rng):
     """Section 6: normal (SL x d) x SL, slightly perturbed; density bins -> 1..leaf_bins leaves per quad (side
     proportional to sqrt(count): area proportional to the number of leaves); bare twigs get random clusters."""
-    from reference_impl.xu.synthesis import node_directions
-
     d = node_directions(pos, par)
     k = len(locs)
     count = np.ones(k, np.int64)
@@ -321,7 +345,3 @@ def _leaf_quads(locs, density, snode, pos, par, bare_pos, size, params: XuParams
     frames = leaf_frames(locs - 0.5 * length[:, None] * sl, sl, normal)
     extra = [{"model": "quad", "leaves": int(c)} for c in count]
     return quad_leaves(frames, length, 0.5 * length, snode, extra)
-
-
-
-_ = BinSkeleton  # re-exported type for callers inspecting intermediate results

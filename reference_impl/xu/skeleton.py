@@ -11,7 +11,7 @@ import scipy.sparse as sp
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
-from reference_impl.common.skeleton_ops import unit
+from plantbench.geometry.vectors import unit
 
 __all__ = ["BinSkeleton", "bin_skeleton", "probe_extend"]
 
@@ -92,6 +92,68 @@ def _cone_hits(origin: np.ndarray, axis: np.ndarray, cand: np.ndarray, half_angl
     return (d <= reach) & (d > 1e-12) & (cos >= np.cos(half_angle))
 
 
+def _probe(tree: cKDTree, points: np.ndarray, labels: np.ndarray, attached: np.ndarray, rejected: np.ndarray,
+           apex: np.ndarray, axis: np.ndarray, half_angle: float, gap: float) -> int:
+    """Forward probe: the nearest point inside the cone (``apex``, ``axis``, ``half_angle``, length ``gap``) that
+    belongs to a subgraph neither attached nor rejected; -1 for none."""
+    near = np.asarray(tree.query_ball_point(apex, gap), np.int64)
+    near = near[~attached[near] & ~rejected[labels[near]]]
+    if len(near) == 0:
+        return -1
+    hit = near[_cone_hits(apex, axis, points[near], half_angle, gap)]
+    if len(hit) == 0:
+        return -1
+    return int(hit[np.argmin(np.linalg.norm(points[hit] - apex, axis=1))])
+
+
+def _back_probe(pos: list, par: list, geo: list, p_pos: np.ndarray, tangent: np.ndarray, half_angle: float,
+                gap: float, width: float) -> int:
+    """Backward probe from P: the nearest point Q of the skeleton (``pos``, ``par``, ``geo`` lists; on an edge or a
+    node) inside the cone from ``p_pos`` along ``tangent``, as a node: an edge's end within a quarter bin ``width``
+    of Q, else a node inserted on the edge (appended to the lists). Returns Q's node, -1 when the cone holds none."""
+    nodes = np.asarray(pos)
+    parr = np.asarray(par)
+    child = np.flatnonzero(parr >= 0)
+    a, b = nodes[parr[child]], nodes[child]
+    ab = b - a
+    t = np.clip(np.sum((p_pos - a) * ab, 1) / np.maximum(np.sum(ab * ab, 1), 1e-300), 0, 1)
+    q = np.concatenate([a + t[:, None] * ab, nodes])
+    ok = _cone_hits(p_pos, tangent, q, half_angle, gap)
+    if not ok.any():
+        return -1
+    cand = np.flatnonzero(ok)
+    best = cand[np.argmin(np.linalg.norm(q[cand] - p_pos, axis=1))]
+    if best >= len(child):
+        return int(best - len(child))
+    c = int(child[best])
+    tb = t[best]
+    seg = np.linalg.norm(ab[best])
+    if tb * seg < 0.25 * width:
+        return int(parr[c])
+    if (1 - tb) * seg < 0.25 * width:
+        return c
+    pos.append(q[best])  # Q on the edge parent(c) -> c
+    par.append(int(parr[c]))
+    geo.append(geo[parr[c]] + tb * (geo[c] - geo[parr[c]]))
+    par[c] = len(pos) - 1
+    return len(pos) - 1
+
+
+def _append(pos: list, par: list, geo: list, point_node: np.ndarray, sub: BinSkeleton, q_node: int,
+            p_pos: np.ndarray) -> range:
+    """Append the subgraph's skeleton ``sub`` to the lists, its root hanging from ``q_node`` (geodesic distances
+    continue through P); its points' nodes are renumbered in ``point_node``. Returns the new nodes."""
+    off = len(pos)
+    base_geo = geo[q_node] + float(np.linalg.norm(p_pos - pos[q_node]))
+    for i in range(len(sub.positions)):
+        pos.append(sub.positions[i])
+        par.append(off + int(sub.parents[i]) if sub.parents[i] >= 0 else q_node)
+        geo.append(base_geo + float(sub.geodesic[i]))
+    sel = sub.point_node >= 0
+    point_node[sel] = off + sub.point_node[sel]
+    return range(off, len(pos))
+
+
 def probe_extend(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray, main: BinSkeleton,
                  attached: np.ndarray, *, width: float, cone_deg: float, gap: float, max_geodesic: float,
                  min_nodes: int = 2, tangent_nodes: int = 3) -> tuple[BinSkeleton, np.ndarray, int]:
@@ -121,64 +183,23 @@ def probe_extend(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray, m
         if geo[v] >= max_geodesic:
             continue
         axis = unit(pos[v] - pos[par[v]]) if par[v] >= 0 else np.array([0.0, 0.0, 1.0])
-        near = np.asarray(tree.query_ball_point(pos[v], gap), np.int64)
-        near = near[~attached[near] & ~rejected[labels[near]]]
-        if len(near) == 0:
+        p_idx = _probe(tree, points, labels, attached, rejected, pos[v], axis, half, gap)
+        if p_idx < 0:
             continue
-        hit = near[_cone_hits(pos[v], axis, points[near], half, gap)]
-        if len(hit) == 0:
-            continue
-        p_idx = hit[np.argmin(np.linalg.norm(points[hit] - pos[v], axis=1))]
-        g_label = labels[p_idx]
-        members = np.flatnonzero(labels == g_label)
+        members = np.flatnonzero(labels == labels[p_idx])
         sub = bin_skeleton(points, graph, members, np.array([p_idx]), width)
         if len(sub.positions) < min_nodes:
-            rejected[g_label] = True
+            rejected[labels[p_idx]] = True
             continue
         # tangent at P: from the centroid of G's first nodes (by geodesic distance) back through P
         first = np.argsort(sub.geodesic, kind="stable")[:tangent_nodes]
         p_pos = points[p_idx]
         tangent = unit(p_pos - sub.positions[first[1:]].mean(0)) if len(first) > 1 else -axis
-        # back-probe: nearest point of the current skeleton's edges (or nodes) inside the cone from P
-        P = np.asarray(pos)
-        parr = np.asarray(par)
-        child = np.flatnonzero(parr >= 0)
-        a, b = P[parr[child]], P[child]
-        ab = b - a
-        t = np.clip(np.sum((p_pos - a) * ab, 1) / np.maximum(np.sum(ab * ab, 1), 1e-300), 0, 1)
-        q = np.concatenate([a + t[:, None] * ab, P])
-        ok = _cone_hits(p_pos, tangent, q, half, gap)
-        if not ok.any():
+        q_node = _back_probe(pos, par, geo, p_pos, tangent, half, gap, width)
+        if q_node < 0:
             continue
-        cand = np.flatnonzero(ok)
-        best = cand[np.argmin(np.linalg.norm(q[cand] - p_pos, axis=1))]
-        if best < len(child):
-            c = int(child[best])
-            tb = t[best]
-            seg = np.linalg.norm(ab[best])
-            if tb * seg < 0.25 * width:
-                qn = int(parr[c])
-            elif (1 - tb) * seg < 0.25 * width:
-                qn = c
-            else:  # insert Q on the edge parent(c) -> c
-                pos.append(q[best])
-                par.append(int(parr[c]))
-                geo.append(geo[parr[c]] + tb * (geo[c] - geo[parr[c]]))
-                qn = len(pos) - 1
-                par[c] = qn
-        else:
-            qn = int(best - len(child))
-        # append G's skeleton; its root node hangs from Q
-        off = len(pos)
-        base_geo = geo[qn] + float(np.linalg.norm(p_pos - pos[qn]))
-        for i in range(len(sub.positions)):
-            pos.append(sub.positions[i])
-            par.append(off + int(sub.parents[i]) if sub.parents[i] >= 0 else qn)
-            geo.append(base_geo + float(sub.geodesic[i]))
-        sel = sub.point_node >= 0
-        point_node[sel] = off + sub.point_node[sel]
+        queue.extend(_append(pos, par, geo, point_node, sub, q_node, p_pos))
         attached[members] = True
-        queue.extend(range(off, len(pos)))
         joined += 1
     out = BinSkeleton(np.asarray(pos), np.asarray(par, np.int64), np.asarray(geo), point_node)
     return out, attached, joined

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from reference_impl.common.graph import children_csr, tree_levels
-from reference_impl.common.skeleton_ops import unit
+from plantbench.geometry.vectors import levels, similarity_transform, unit
+from reference_impl.common.graph import children_csr, subtree_sums
 
 __all__ = ["leaf_locations", "node_directions", "axil_angles", "support", "triangle_table", "triangle_angles",
            "similarity_transform", "section_nodes", "synthesize", "prune_bare_twigs", "SynthesisResult"]
@@ -40,10 +40,7 @@ def _kth_ancestor(parents: np.ndarray, k: int) -> np.ndarray:
 def _main_descendant(parents: np.ndarray, k: int) -> np.ndarray:
     """(n,) the node reached by following the child with the largest subtree ``k`` times (or the last one)."""
     n = len(parents)
-    size = np.ones(n)
-    for idx in reversed(tree_levels(parents)):
-        c = idx[parents[idx] >= 0]
-        np.add.at(size, parents[c], size[c])
+    size = subtree_sums(np.ones(n), parents)
     child = np.flatnonzero(parents >= 0)
     main = np.arange(n)
     if len(child):
@@ -138,14 +135,7 @@ def triangle_table(positions: np.ndarray, parents: np.ndarray, *, per_child: int
     subtree, the first ``per_child`` junctions and tips below it in breadth-first order [S: bounds the table]."""
     ptr, kids = children_csr(parents)
     nk = np.diff(ptr)
-    levels = tree_levels(parents)
-    depth = np.zeros(len(parents), np.int64)
-    for i, idx in enumerate(levels):
-        depth[idx] = i
-    size = np.ones(len(parents))
-    for idx in reversed(levels):
-        c = idx[parents[idx] >= 0]
-        np.add.at(size, parents[c], size[c])
+    size = subtree_sums(np.ones(len(parents)), parents)  # nodes per subtree
     os_, as_, bs_, det = [], [], [], []
     for o in np.flatnonzero(nk >= 2):
         groups = []
@@ -176,21 +166,6 @@ def triangle_table(positions: np.ndarray, parents: np.ndarray, *, per_child: int
     pts = np.concatenate([ang, ang[:, [0, 2, 1]]])
     return TriangleTable(cKDTree(pts), np.concatenate([o, o]), np.concatenate([a, b]), np.concatenate([b, a]),
                          np.concatenate([det, det]))
-
-
-def similarity_transform(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Umeyama: scale s, rotation R, translation t minimising sum |s R src_i + t - dst_i|^2 (src, dst : (k, 3))."""
-    ms, md = src.mean(0), dst.mean(0)
-    xs, xd = src - ms, dst - md
-    cov = xd.T @ xs / len(src)
-    u, sig, vt = np.linalg.svd(cov)
-    s_ = np.eye(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:
-        s_[2, 2] = -1
-    rot = u @ s_ @ vt
-    var = (xs**2).sum() / len(src)
-    scale = float(np.trace(np.diag(sig) @ s_) / max(var, 1e-300))
-    return scale, rot, md - scale * rot @ ms
 
 
 def _path_up(parents: np.ndarray, start: int, stop: int) -> list[int]:
@@ -342,7 +317,7 @@ def prune_bare_twigs(positions: np.ndarray, parents: np.ndarray, synthetic: np.n
             else:
                 keep[chain] = False
     # a removed node's descendants go too (a chain ends at a junction, so there are none, but stay safe)
-    for idx in tree_levels(parents):
+    for idx in levels(parents):
         c = idx[parents[idx] >= 0]
         keep[c] &= keep[parents[c]]
     return keep, np.asarray(kept_tips, np.int64)

@@ -5,10 +5,10 @@ import pytest
 from scipy.sparse import csgraph
 
 from plantbench.errors import InputError
+from plantbench.geometry.vectors import depths
 from reference_impl.common.graph import (
     bridge_components,
     children_csr,
-    depths,
     knn_graph,
     radius_graph,
     shortest_path_tree,

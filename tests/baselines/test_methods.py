@@ -139,3 +139,19 @@ def test_livny_voxel_follows_the_height_and_the_vertex_cap(plant):
     above = pts[pts[:, 2] > 0.01]  # the plant without its ground disc
     cells = np.unique(np.floor((above - above.min(0)) / capped.info["voxel"]).astype(np.int64), axis=0)
     assert abs(len(cells) - capped.info["vertices"]) <= 0.1 * capped.info["vertices"]  # origin offset only
+
+
+def test_suite_options_map_onto_the_parameters():
+    """plantbench.schemas.params_from_options, which livny, xu and guo share: TOML lists become the tuples a field
+    holds, unknown names are refused listing the valid ones (and, for guo, the options it reads itself)."""
+    from plantbench.schemas import params_from_options
+    from reference_impl.guo.params import params_from_options as guo_params
+    from reference_impl.xu import XuParams
+
+    p = params_from_options(XuParams, {"default_axil_deg": [30.0, 6.0], "spur_bins": 3})
+    assert p.default_axil_deg == (30.0, 6.0) and p.spur_bins == 3
+    with pytest.raises(InputError, match=r"unknown option\(s\) nope \(valid: angle_shift_limit, "):
+        params_from_options(XuParams, {"nope": 1})
+    with pytest.raises(InputError, match=r"^guo: unknown option\(s\) nope \(valid: .*, prior, leaves\)"):
+        guo_params({"nope": 1})
+    assert guo_params({"tropism": [0.0, 0.0, -1.0]}).tropism == (0.0, 0.0, -1.0)

@@ -35,21 +35,13 @@ def test_same_seed_same_bytes_other_seed_differs(tmp_path, laurel_case):
 def test_skeleton_is_a_rooted_forest_on_the_ground(laurel_case):
     plant, meta = read_plant(laurel_case[0])
     sk = plant.skeleton
-    assert sk.is_forest()
+    assert sk.is_forest()  # every node reaches a root
     roots = sk.roots
     assert len(roots) == meta.counts.roots == 1
     np.testing.assert_array_equal(sk.positions[roots, 2], 0.0)
     assert np.all(sk.radii > 0)
     child = np.flatnonzero(sk.parents >= 0)
     assert np.all(sk.radii[child] <= sk.radii[sk.parents[child]])
-    # every node reaches the root
-    anc = np.arange(len(sk))
-    for _ in range(len(sk)):
-        nxt = np.where(sk.parents[anc] >= 0, sk.parents[anc], anc)
-        if np.array_equal(nxt, anc):
-            break
-        anc = nxt
-    assert set(anc.tolist()) == set(roots.tolist())
     assert np.all(sk.positions[:, 2] >= 0)
 
 

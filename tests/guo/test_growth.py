@@ -6,7 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from reference_impl.common.graph import tree_levels
+from plantbench.geometry.vectors import levels
 from reference_impl.guo.growth import (
     allometric_radii,
     assign_markers,
@@ -75,14 +75,14 @@ def test_allometric_radii_follow_eq5_at_a_junction():
     pos = np.array([[0, 0, 0], [0, 0, 0.1], [0, 0, 0.4], [0.1, 0, 0.1]], float)
     par = np.array([-1, 0, 1, 1])
     gamma = 0.45
-    r = allometric_radii(pos, par, np.array([0.02]), gamma, levels=tree_levels(par))
+    r = allometric_radii(pos, par, np.array([0.02]), gamma, levels=levels(par))
     l_b, l_c, own = 0.3, 0.1, 0.1
     # Eq. 5 with the parent's own internode in the sum (the ratios telescope)
     assert np.isclose(r[2] / r[1], (l_b / (l_b + l_c + own)) ** gamma)
     assert np.isclose(r[3] / r[1], (l_c / (l_b + l_c + own)) ** gamma)
     assert r[1] == r[0] == 0.02
     # dead nodes support nothing
-    r2 = allometric_radii(pos, par, np.array([0.02]), gamma, levels=tree_levels(par),
+    r2 = allometric_radii(pos, par, np.array([0.02]), gamma, levels=levels(par),
                           alive=np.array([True, True, True, False]))
     assert np.isclose(r2[2] / r2[1], (l_b / (l_b + own)) ** gamma)
 
@@ -113,7 +113,7 @@ def test_two_roots_compete_and_growth_crosses_gaps(rng):
                PRIOR, GuoParams())
     assert out.markers_left < 0.05 * len(markers)
     root_of = np.arange(len(out.parents))
-    for idx in tree_levels(out.parents):
+    for idx in levels(out.parents):
         c = idx[out.parents[idx] >= 0]
         root_of[c] = root_of[out.parents[c]]
     for r, x in zip(np.flatnonzero(out.parents < 0), (-1.0, 1.0)):

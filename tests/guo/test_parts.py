@@ -143,11 +143,6 @@ def test_smooth_rounds_chain_corners_but_not_junctions():
         c = int(np.flatnonzero(origin == child)[0])
         assert new_par[c] == j
         np.testing.assert_allclose(out[c] - out[j], pos[child] - pos[4])
-    c = new_par >= 0
-    turn = np.degrees(np.arccos(np.clip(np.sum(
-        (out[c] - out[new_par[c]]) / np.linalg.norm(out[c] - out[new_par[c]], axis=1)[:, None]
-        * np.r_[[[0, 0, 1]], (out[c] - out[new_par[c]])[:-1]][: c.sum()] / 1, 1), -1, 1)))
-    del turn
 
 
 def test_species_prior_comes_from_the_published_hint():
@@ -176,8 +171,8 @@ def test_select_leaves_keeps_supported_leaves_once(rng):
     from dataclasses import replace
 
     from plantbench.geometry.tubes import node_frames
+    from plantbench.geometry.vectors import levels
     from plantbench.plant import TriMesh
-    from reference_impl.common.graph import tree_levels
     from reference_impl.guo.leaves import LeafConfig, place_leaves
     from reference_impl.guo.pipeline import select_leaves
 
@@ -186,7 +181,7 @@ def test_select_leaves_keeps_supported_leaves_once(rng):
     par = np.arange(n) - 1
     main = par >= 0
     tangent, normal, _, _ = node_frames(pos, par, main)
-    fol = place_leaves(pos, par, np.full(n, 0.001), main, tangent, normal, tree_levels(par), np.ones(n, bool),
+    fol = place_leaves(pos, par, np.full(n, 0.001), main, tangent, normal, levels(par), np.ones(n, bool),
                        LeafConfig(length=0.08), rng)
     m = len(fol.leaves)
     q = (len(fol.mesh.vertices) - 6 * m) // m
@@ -219,7 +214,7 @@ def test_hint_leaves_follow_the_arrangement_and_length(rng):
     """guo's own leaf placement: opposite leaves come in pairs half a turn apart, spiral ones one per node, whorls
     per_whorl; thick nodes and ineligible nodes bear none; every blade has the hint's length."""
     from plantbench.geometry.tubes import node_frames
-    from reference_impl.common.graph import tree_levels
+    from plantbench.geometry.vectors import levels
     from reference_impl.guo.leaves import LeafConfig, place_leaves
 
     n = 9
@@ -232,7 +227,7 @@ def test_hint_leaves_follow_the_arrangement_and_length(rng):
     bearing = [i for i in range(1, n) if radii[i] <= 0.002 and eligible[i]]
     for arrangement, per in (("spiral", 1), ("opposite", 2), ("whorl", 3)):
         cfg = LeafConfig(length=0.07, arrangement=arrangement)
-        placed = place_leaves(pos, par, radii, main, tangent, normal, tree_levels(par), eligible, cfg, rng)
+        placed = place_leaves(pos, par, radii, main, tangent, normal, levels(par), eligible, cfg, rng)
         assert [lf.node for lf in placed.leaves] == [i for i in bearing for _ in range(per)]
         assert all(lf.length == 0.07 for lf in placed.leaves)
         m = len(placed.leaves)

@@ -182,7 +182,6 @@ def test_auto_voxel_keeps_the_cloud_within_its_budget():
     """down_sample = 'auto': none for a small cloud; otherwise the smallest 0.008 x 1.25^k voxel that Open3D's voxel
     down-sampling brings within max_points (checked against Open3D itself, one step finer is over)."""
     import open3d as o3d
-
     from plantbench_pcskeletor import AUTO_VOXEL_START, LBCParams, params_from_options, voxel_size
 
     rng = np.random.default_rng(0)

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from plantbench.generate.colonisation import GrowthParams, assign_markers, grow_space_colonisation, perceive
+from plantbench.generate.palubicki import GrowthParams, assign_markers, grow_space_colonisation, perceive
 from plantbench.plant import Skeleton
 
 
@@ -27,6 +27,24 @@ def test_assign_markers_matches_brute_force(rng):
     cos_half = np.cos(np.radians(45))
     got = assign_markers(markers, bud_pos, bud_dir, radius=0.4, cos_half_angle=cos_half, neighbours=25)
     np.testing.assert_array_equal(got, _brute_force(markers, bud_pos, bud_dir, 0.4, cos_half))
+
+
+def test_assign_markers_penalty_breaks_ties(rng):
+    """Two buds at each place (guo's apical and lateral bud of one node): without a penalty the first found wins;
+    a penalty on one of them hands its markers to the other, wherever both perceive them."""
+    markers = rng.random((300, 3))
+    pos = rng.random((10, 3))
+    bud_pos = np.repeat(pos, 2, axis=0)
+    bud_dir = np.repeat(rng.normal(size=(10, 3)), 2, axis=0)
+    bud_dir /= np.linalg.norm(bud_dir, axis=1, keepdims=True)
+    kw = {"radius": 0.5, "cos_half_angle": np.cos(np.radians(60)), "neighbours": 20}
+    plain = assign_markers(markers, bud_pos, bud_dir, **kw)
+    for lose in (0, 1):
+        penalty = np.where(np.arange(20) % 2 == lose, 1e-9, 0.0)
+        got = assign_markers(markers, bud_pos, bud_dir, penalty=penalty, **kw)
+        np.testing.assert_array_equal(got >= 0, plain >= 0)
+        np.testing.assert_array_equal(got[got >= 0] // 2, plain[plain >= 0] // 2)  # the same place
+        assert np.all(got[got >= 0] % 2 != lose)
 
 
 def test_perceive_direction_is_mean_unit_vector():
