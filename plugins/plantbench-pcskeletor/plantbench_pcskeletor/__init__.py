@@ -239,8 +239,8 @@ def run_lbc(points: np.ndarray, params: LBCParams = LBCParams(), *, seed: int = 
     offset = pts.min(axis=0) - _FRAME_MARGIN
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts - offset))
     kwargs = dataclasses.asdict(params)
+    kwargs.pop("max_points")  # the plugin's, not the tool's
     kwargs["down_sample"] = voxel_size(pcd, params)
-    del kwargs["max_points"]  # the plugin's, not the tool's
     log = io.StringIO()
     with _captured(log), _thread_cap(), _seeded_global_numpy(seed):
         try:
