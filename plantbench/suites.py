@@ -148,10 +148,9 @@ class Suite(Strict):
     sweep: Sweep | None = None
 
 
-def apply_override(suite: Suite, parameter: str | dict[str, Any], value: Any = None) -> Suite:
-    """A copy of ``suite`` with the dotted ``parameter`` set to ``value`` (validated again); ``parameter`` may
-    instead be a {dotted setting: value} mapping, all set at once (a sweep level with linked settings)."""
-    settings = parameter if isinstance(parameter, dict) else {parameter: value}
+def apply_override(suite: Suite, settings: dict[str, Any]) -> Suite:
+    """A copy of ``suite`` with each dotted setting of ``settings`` (e.g. ``{"capture.views": 3}``; a sweep level
+    with its linked settings) set to its value, validated again."""
     data = suite.model_dump(mode="python")
     for name, val in settings.items():
         node = data
@@ -159,14 +158,14 @@ def apply_override(suite: Suite, parameter: str | dict[str, Any], value: Any = N
         for key in path:
             node = node.setdefault(key, {})
             if not isinstance(node, dict):
-                raise InputError(f"sweep parameter {name!r}: {key!r} is not a table")
+                raise InputError(f"setting {name!r}: {key!r} is not a table")
         node[last] = val
     data["sweep"] = None
     try:
         return Suite.model_validate(data)
     except ValidationError as exc:
         what = ", ".join(f"{k} = {v!r}" for k, v in settings.items())
-        raise InputError(f"sweep level {what}: {validation_message(exc)}") from None
+        raise InputError(f"{what}: {validation_message(exc)}") from None
 
 
 def _discover(reg: Registry) -> None:

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from plantbench.geometry.nodes import GrowableNodes
 from plantbench.geometry.perception import assign_markers
 from plantbench.geometry.vectors import levels_of, perpendicular, rotate, unit
 
@@ -127,54 +128,24 @@ def perceive(markers: np.ndarray, bud_pos: np.ndarray, bud_dir: np.ndarray, *, r
     return q, unit(vdir)
 
 
-class _Tree:
-    """Growable node arrays."""
+_TREE_COLUMNS = {
+    "pos": ((3,), np.float64, 0.0), "head": ((3,), np.float64, 0.0), "ref": ((3,), np.float64, 0.0),
+    "lat_dir": ((3,), np.float64, 0.0), "parent": ((), np.int64, -1), "main_child": ((), np.int64, -1),
+    "lat_child": ((), np.int64, -1), "order": ((), np.int64, 0), "depth": ((), np.int64, 0),
+    "lateral": ((), bool, False), "lat_viable": ((), bool, False), "alive": ((), bool, False),
+    "starve": ((), np.int64, 0),
+}
 
-    def __init__(self, cap: int = 4096) -> None:
-        self.n = 0
-        self.pos = np.zeros((cap, 3))
-        self.head = np.zeros((cap, 3))
-        self.ref = np.zeros((cap, 3))
-        self.lat_dir = np.zeros((cap, 3))
-        self.parent = np.full(cap, -1, np.int64)
-        self.main_child = np.full(cap, -1, np.int64)
-        self.lat_child = np.full(cap, -1, np.int64)
-        self.order = np.zeros(cap, np.int64)
-        self.depth = np.zeros(cap, np.int64)
-        self.lateral = np.zeros(cap, bool)
-        self.lat_viable = np.zeros(cap, bool)
-        self.alive = np.zeros(cap, bool)
-        self.starve = np.zeros(cap, np.int64)
 
-    def _grow(self, need: int) -> None:
-        cap = len(self.parent)
-        if need <= cap:
-            return
-        new = max(need, 2 * cap)
-        for name in ("pos", "head", "ref", "lat_dir", "parent", "main_child", "lat_child", "order", "depth",
-                     "lateral", "lat_viable", "alive", "starve"):
-            old = getattr(self, name)
-            fill = -1 if name in ("parent", "main_child", "lat_child") else 0
-            arr = np.full((new,) + old.shape[1:], fill, old.dtype)
-            arr[:cap] = old
-            setattr(self, name, arr)
+class _Tree(GrowableNodes):
+    """The growing plant's node arrays (:data:`_TREE_COLUMNS`)."""
+
+    def __init__(self) -> None:
+        super().__init__(_TREE_COLUMNS)
 
     def add(self, pos, head, ref, lat_dir, parent, order, depth, lateral, lat_viable) -> np.ndarray:
-        k = len(pos)
-        self._grow(self.n + k)
-        idx = np.arange(self.n, self.n + k)
-        self.pos[idx] = pos
-        self.head[idx] = head
-        self.ref[idx] = ref
-        self.lat_dir[idx] = lat_dir
-        self.parent[idx] = parent
-        self.order[idx] = order
-        self.depth[idx] = depth
-        self.lateral[idx] = lateral
-        self.lat_viable[idx] = lat_viable
-        self.alive[idx] = True
-        self.n += k
-        return idx
+        return super().add(pos=pos, head=head, ref=ref, lat_dir=lat_dir, parent=parent, order=order, depth=depth,
+                           lateral=lateral, lat_viable=lat_viable)
 
 
 def _occupy(tree: _Tree, markers: np.ndarray, done: int, radius: float) -> np.ndarray:

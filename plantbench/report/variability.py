@@ -146,9 +146,7 @@ def run_study(suite, out: Path, *, perturbations: list[Perturbation] | None = No
     for p in perturbations or available_perturbations():
         if on_run is not None:
             on_run(p)
-        s = suite
-        for key, value in p.capture.items():
-            s = apply_override(s, f"capture.{key}", value)
+        s = apply_override(suite, {f"capture.{key}": value for key, value in p.capture.items()})
         with _environment(p.env):
             result = run_suite(s, Path(out) / p.name, workers=p.workers, progress=progress)
         tables[p.name] = result.table

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from plantbench.geometry.nodes import GrowableNodes
 from plantbench.geometry.perception import assign_markers as nearest_cone
 from plantbench.geometry.vectors import levels_of, perpendicular, rotate, unit
 from reference_impl.common.graph import subtree_sums
@@ -150,42 +151,16 @@ class GrowthOutput:
     """Per cycle: t, rho, d_i, markers, buds with markers, new nodes, shed nodes."""
 
 
-class _Nodes:
-    """Growable node arrays."""
+class _Nodes(GrowableNodes):
+    """The growing skeleton's node arrays."""
 
-    names = ("pos", "head", "ref", "latdir", "parent", "has_main", "has_lat", "lateral", "birth", "depth", "alive",
-             "lat_ok")
-
-    def __init__(self, cap: int = 4096) -> None:
-        self.n = 0
-        self.pos = np.zeros((cap, 3))
-        self.head = np.zeros((cap, 3))
-        self.ref = np.zeros((cap, 3))
-        self.latdir = np.zeros((cap, 3))
-        self.parent = np.full(cap, -1, np.int64)
-        self.has_main = np.zeros(cap, bool)
-        self.has_lat = np.zeros(cap, bool)
-        self.lateral = np.zeros(cap, bool)
-        self.birth = np.zeros(cap, np.int64)
-        self.depth = np.zeros(cap, np.int64)
-        self.alive = np.zeros(cap, bool)
-        self.lat_ok = np.zeros(cap, bool)
-
-    def add(self, **cols) -> np.ndarray:
-        k = len(cols["pos"])
-        if self.n + k > len(self.parent):
-            new = max(self.n + k, 2 * len(self.parent))
-            for name in self.names:
-                old = getattr(self, name)
-                arr = np.full((new,) + old.shape[1:], -1 if name == "parent" else 0, old.dtype)
-                arr[: self.n] = old[: self.n]
-                setattr(self, name, arr)
-        idx = np.arange(self.n, self.n + k)
-        for name, val in cols.items():
-            getattr(self, name)[idx] = val
-        self.alive[idx] = True
-        self.n += k
-        return idx
+    def __init__(self) -> None:
+        super().__init__({
+            "pos": ((3,), np.float64, 0.0), "head": ((3,), np.float64, 0.0), "ref": ((3,), np.float64, 0.0),
+            "latdir": ((3,), np.float64, 0.0), "parent": ((), np.int64, -1), "has_main": ((), bool, False),
+            "has_lat": ((), bool, False), "lateral": ((), bool, False), "birth": ((), np.int64, 0),
+            "depth": ((), np.int64, 0), "alive": ((), bool, False), "lat_ok": ((), bool, False),
+        })
 
     def alive_tree(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The alive nodes renumbered in order (parents still precede children): positions, parents, lateral flags

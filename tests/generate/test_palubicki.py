@@ -124,3 +124,17 @@ def test_heading_turns_at_most_max_turn_per_internode(rng):
     child = child[res.parents[child] != 0]  # the root's heading is not an internode's
     cosang = np.sum(res.headings[child] * res.headings[res.parents[child]], axis=1)
     assert np.degrees(np.arccos(np.clip(cosang, -1, 1))).max() <= 7.0 + 1e-6
+
+
+def test_growable_nodes_keep_rows_and_fill_across_growth():
+    """Rows added before a capacity doubling survive it; columns not given keep their fill; alive set on add."""
+    from plantbench.geometry.nodes import GrowableNodes
+
+    nodes = GrowableNodes({"pos": ((3,), np.float64, 0.0), "parent": ((), np.int64, -1),
+                           "alive": ((), bool, False)}, cap=2)
+    a = nodes.add(pos=np.ones((2, 3)))
+    b = nodes.add(pos=np.full((3, 3), 2.0), parent=np.array([0, 1, 1]))
+    assert list(a) == [0, 1] and list(b) == [2, 3, 4] and nodes.n == 5 and len(nodes.pos) >= 5
+    assert np.array_equal(nodes.pos[:5], np.repeat([[1.0], [1.0], [2.0], [2.0], [2.0]], 3, axis=1))
+    assert list(nodes.parent[:5]) == [-1, -1, 0, 1, 1] and np.all(nodes.parent[5:] == -1)
+    assert nodes.alive[:5].all() and not nodes.alive[5:].any()

@@ -99,6 +99,6 @@ def test_pack_refuses_to_overwrite_and_a_suite_that_differs(packed, tmp_path):
         pack_suite(suite, pack, cache=tmp_path / "cache")
     from plantbench.suites import apply_override
 
-    other = apply_override(suite, "capture.views", 3)
+    other = apply_override(suite, {"capture.views": 3})
     with pytest.raises(InputError, match="capture differ"):
         run_suite(other, tmp_path / "runs", dataset=pack)
