@@ -321,12 +321,7 @@ def _grow_shoots(tree: _Tree, node: np.ndarray, lateral: np.ndarray, count: np.n
 
 def _result(tree: _Tree, iterations: int, metamers: int, shoots: int, markers_left: int) -> GrowthResult:
     """The living nodes, renumbered in order."""
-    n = tree.n
-    keep = np.flatnonzero(tree.alive[:n])
-    remap = np.full(n, -1, np.int64)
-    remap[keep] = np.arange(len(keep))
-    par = tree.parent[keep]
-    parents = np.where(par >= 0, remap[np.maximum(par, 0)], -1)
+    keep, parents = tree.alive_rows()
     return GrowthResult(
         positions=tree.pos[keep].copy(),
         parents=parents,

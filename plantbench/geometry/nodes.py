@@ -44,3 +44,13 @@ class GrowableNodes:
             self.alive[idx] = True
         self.n += k
         return idx
+
+    def alive_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """The rows whose ``alive`` is set, in order, and their parents renumbered among them (-1 for a root, or for
+        a row whose parent is not alive): (keep (m,) int, parents (m,) int)."""
+        n = self.n
+        keep = np.flatnonzero(self.alive[:n])
+        remap = np.full(n, -1, np.int64)
+        remap[keep] = np.arange(len(keep))
+        par = self.parent[keep]
+        return keep, np.where(par >= 0, remap[np.maximum(par, 0)], -1)

@@ -165,12 +165,7 @@ class _Nodes(GrowableNodes):
     def alive_tree(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The alive nodes renumbered in order (parents still precede children): positions, parents, lateral flags
         and depths."""
-        n = self.n
-        keep = np.flatnonzero(self.alive[:n])
-        remap = np.full(n, -1, np.int64)
-        remap[keep] = np.arange(len(keep))
-        par = self.parent[keep]
-        parents = np.where(par >= 0, remap[np.maximum(par, 0)], -1)
+        keep, parents = self.alive_rows()
         return self.pos[keep], parents, self.lateral[keep], self.depth[keep]
 
 

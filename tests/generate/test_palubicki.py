@@ -138,3 +138,14 @@ def test_growable_nodes_keep_rows_and_fill_across_growth():
     assert np.array_equal(nodes.pos[:5], np.repeat([[1.0], [1.0], [2.0], [2.0], [2.0]], 3, axis=1))
     assert list(nodes.parent[:5]) == [-1, -1, 0, 1, 1] and np.all(nodes.parent[5:] == -1)
     assert nodes.alive[:5].all() and not nodes.alive[5:].any()
+
+
+def test_alive_rows_renumber_parents_among_the_living():
+    from plantbench.geometry.nodes import GrowableNodes
+
+    nodes = GrowableNodes({"pos": ((3,), np.float64, 0.0), "parent": ((), np.int64, -1),
+                           "alive": ((), bool, False)})
+    nodes.add(pos=np.zeros((5, 3)), parent=np.array([-1, 0, 1, 2, 1]))
+    nodes.alive[2] = False  # node 3 hangs from a dead node: it becomes a root
+    keep, parents = nodes.alive_rows()
+    assert list(keep) == [0, 1, 3, 4] and list(parents) == [-1, 0, -1, 1]
