@@ -491,7 +491,8 @@ def import_views_cmd(
 
 qsm_app = _group("qsm", "QSM cylinder tables (TreeQSM / rTwig columns) to and from skeletons.")
 
-_CASE_HELP = "An imported case: the QSM is in the frame of the file imported into it (units, axes, georeference)."
+_CaseOption = Annotated[Optional[Path], typer.Option(  # noqa: UP045
+    help="An imported case: the QSM is in the frame of the file imported into it (units, axes, georeference).")]
 
 
 def _case_frame(skeleton, case: Path | None, to: str):
@@ -508,7 +509,7 @@ def _case_frame(skeleton, case: Path | None, to: str):
 def qsm_export(
     recon: Annotated[Path, typer.Argument(metavar="RECON_DIR", help="A method's output folder (skeleton.ply).")],
     out: Annotated[Path, typer.Option(help="CSV file to write.")],
-    case: Annotated[Optional[Path], typer.Option(help=_CASE_HELP)] = None,  # noqa: UP045
+    case: _CaseOption = None,
 ) -> None:
     """Write a reconstruction's skeleton as a cylinder table (one cylinder per edge)."""
     from plantbench.io.ply import read_skeleton
@@ -523,7 +524,7 @@ def qsm_export(
 def qsm_import(
     file: Annotated[Path, typer.Argument(metavar="FILE.csv", help="Cylinder table CSV (start_x ... branch_order).")],
     out: Annotated[Path, typer.Option(help="Output folder: skeleton.ply is written there, for `plantbench evaluate`.")],
-    case: Annotated[Optional[Path], typer.Option(help=_CASE_HELP)] = None,  # noqa: UP045
+    case: _CaseOption = None,
 ) -> None:
     """Read a cylinder table (TreeQSM, rTwig) as a reconstruction's skeleton.ply."""
     from plantbench.io.plantio import write_reconstruction

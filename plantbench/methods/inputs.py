@@ -45,12 +45,15 @@ label counts): dropped from a method's copy."""
 
 
 def is_oracle(method, options: dict | None = None) -> bool:
-    """Whether ``method`` reads ground truth with these options: its ``is_oracle(options)`` when it has one, else
-    its ``oracle`` attribute (False when absent)."""
+    """Whether ``method`` reads ground truth with these options: its ``is_oracle(options)`` when it has one; else
+    whether one of the options named in its ``oracle_when`` mapping (option -> value) has that value (mvs with
+    ``oracle_when = {"depth": "oracle"}``); else its ``oracle`` attribute (False when absent)."""
+    options = dict(options or {})
     check = getattr(method, "is_oracle", None)
     if callable(check):
-        return bool(check(dict(options or {})))
-    return bool(getattr(method, "oracle", False))
+        return bool(check(options))
+    when = getattr(method, "oracle_when", None) or {}
+    return any(options.get(k) == v for k, v in when.items()) or bool(getattr(method, "oracle", False))
 
 
 def reads_ground_truth(method, options: dict | None = None) -> bool:

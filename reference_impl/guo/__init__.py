@@ -52,11 +52,8 @@ def species_prior(species: str | None, *, prior: bool = True, hint=None) -> Spec
 class Guo:
     name = "guo"
     inputs = "points"
-
-    @staticmethod
-    def is_oracle(options: dict) -> bool:
-        """``leaf_depth="oracle"`` segments the leaves on the exact depth maps: an oracle run."""
-        return options.get("leaf_depth") == "oracle"
+    oracle_when = {"leaf_depth": "oracle"}
+    """``leaf_depth="oracle"`` segments the leaves on the exact depth maps: an oracle run."""
 
     def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None,
                     **options) -> GuoResult:

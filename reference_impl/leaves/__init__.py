@@ -75,11 +75,8 @@ class Leaves:
 
     name = "leaves"
     inputs = "views"
-
-    @staticmethod
-    def is_oracle(options: dict) -> bool:
-        """``depth="oracle"`` segments on the exact depth maps: an oracle run."""
-        return options.get("depth") == "oracle"
+    oracle_when = {"depth": "oracle"}
+    """``depth="oracle"`` segments on the exact depth maps: an oracle run."""
 
     def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None,
                     **options) -> None:

@@ -254,11 +254,8 @@ class MVS:
 
     name = "mvs"
     inputs = "views"
-
-    @staticmethod
-    def is_oracle(options: dict) -> bool:
-        """``depth="oracle"`` reads the exact depth and instance maps and plant.json: an oracle run."""
-        return options.get("depth") == "oracle"
+    oracle_when = {"depth": "oracle"}
+    """``depth="oracle"`` reads the exact depth and instance maps and plant.json: an oracle run."""
 
     def reconstruct(
         self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None, **options

@@ -2,15 +2,7 @@
 
 import numpy as np
 
-from reference_impl.common.skeleton_ops import (
-    hermite_smooth,
-    merge_siblings,
-    prune_by_ratio,
-    prune_short_tips,
-    remove_degree2,
-    remove_nodes,
-    spatial_merge,
-)
+from reference_impl.common import skeleton_ops as ops
 
 
 def test_remove_nodes_reattaches_to_nearest_kept_ancestor(rng):
@@ -18,7 +10,7 @@ def test_remove_nodes_reattaches_to_nearest_kept_ancestor(rng):
     par = np.array([-1] + [int(rng.integers(0, i)) for i in range(1, n)])
     keep = rng.random(n) < 0.5
     keep[0] = True
-    new_par, index = remove_nodes(par, keep)
+    new_par, index = ops.remove_nodes(par, keep)
     for v in np.flatnonzero(keep):
         u = par[v]
         while u >= 0 and not keep[u]:
@@ -40,11 +32,11 @@ def _y_tree(side_len: float):
 
 def test_prune_by_ratio_drops_small_and_keeps_large_subtrees():
     pos, par = _y_tree(4)
-    assert prune_by_ratio(pos, par, 0.02).all()
+    assert ops.prune_by_ratio(pos, par, 0.02).all()
     # a 0.1 m twig on node 2 is below 2 % of what node 2 supports (8 + 4 m)
     pos2 = np.vstack([pos, [0.1, 0, 2]])
     par2 = np.append(par, 2)
-    keep = prune_by_ratio(pos2, par2, 0.02)
+    keep = ops.prune_by_ratio(pos2, par2, 0.02)
     assert not keep[-1] and keep[:-1].all()
 
 
@@ -52,10 +44,10 @@ def test_prune_short_tips_removes_spurs_only():
     pos, par = _y_tree(4)
     pos2 = np.vstack([pos, [0.05, 0, 7]])
     par2 = np.append(par, 7)
-    keep = prune_short_tips(pos2, par2, 0.5)
+    keep = ops.prune_short_tips(pos2, par2, 0.5)
     assert not keep[-1] and keep[:-1].all()
     # a lone stem is never removed, however short
-    assert prune_short_tips(np.array([[0, 0, 0], [0, 0, 0.01]]), np.array([-1, 0]), 1.0).all()
+    assert ops.prune_short_tips(np.array([[0, 0, 0], [0, 0, 0.01]]), np.array([-1, 0]), 1.0).all()
 
 
 def test_spatial_merge_fuses_parallel_paths():
@@ -65,7 +57,7 @@ def test_spatial_merge_fuses_parallel_paths():
     b = a + [0.001, 0, 0]
     pos = np.vstack([[0, 0, 0], a, b])
     par = np.concatenate([[-1, 0], np.arange(1, 20), [0], np.arange(21, 40)])
-    mpos, mpar, mass, index = spatial_merge(pos, par, np.ones(len(par)), 0.05)
+    mpos, mpar, mass, index = ops.spatial_merge(pos, par, np.ones(len(par)), 0.05)
     assert np.all(index[1:21] == index[21:41])
     assert (mpar < 0).sum() == 1 and np.bincount(mpar[mpar >= 0]).max() == 1  # a single chain
     assert np.isclose(mass.sum(), len(par))
@@ -76,7 +68,7 @@ def test_merge_siblings_by_angle():
                     [1, 0, 1]], float)
     par = np.array([-1, 0, 1, 1, 1])
     w = np.array([4.0, 3.0, 1.0, 1.0, 1.0])
-    mpos, mpar, index = merge_siblings(pos, par, w, max_angle_deg=25)
+    mpos, mpar, index = ops.merge_siblings(pos, par, w, max_angle_deg=25)
     assert len(mpos) == 4 and index[2] == index[3]
     assert np.allclose(mpos[index[2]], [0, 0, 1 + np.cos(0.1)])  # the weight-averaged position
     assert mpar[index[4]] == index[1]
@@ -87,7 +79,7 @@ def test_remove_degree2_keeps_corners():
     corner = np.c_[np.linspace(0.1, 1, 10), np.zeros(10), np.ones(10)]
     pos = np.vstack([line, corner])
     par = np.concatenate([[-1], np.arange(10), [10], np.arange(11, 20)])
-    alive, new_par = remove_degree2(pos, par, np.full(len(par), 0.01))
+    alive, new_par = ops.remove_degree2(pos, par, np.full(len(par), 0.01))
     kept = np.flatnonzero(alive)
     assert set(kept) == {0, 10, 20}
     assert list(new_par) == [-1, 0, 1]
@@ -96,7 +88,7 @@ def test_remove_degree2_keeps_corners():
 def test_hermite_smooth_rounds_a_right_angle():
     pos = np.array([[0, 0, 0], [0, 0, 1], [0, 0, 2], [1, 0, 2]], float)
     par = np.array([-1, 0, 1, 2])
-    spos, spar, origin = hermite_smooth(pos, par, min_angle_deg=30)
+    spos, spar, origin = ops.hermite_smooth(pos, par, min_angle_deg=30)
     # the corner node 2 is gone, replaced by a curve from node 1 to node 3
     assert 2 not in origin and {0, 1, 3} <= set(origin[origin >= 0])
     new = np.flatnonzero(origin < 0)

@@ -1,5 +1,5 @@
 """Mesh-to-scan: against brute-force distances on small inputs; exact point-to-triangle distance against a
-textbook closest-point routine; area-uniform sampling."""
+plane-projection-or-nearest-edge closest point; area-uniform sampling."""
 
 from __future__ import annotations
 
@@ -13,31 +13,20 @@ from plantbench.plant import TriMesh
 from .synth import cylinder
 
 
+def closest_on_segment(p, a, b):
+    t = np.clip((p - a) @ (b - a) / ((b - a) @ (b - a)), 0.0, 1.0)
+    return a + t * (b - a)
+
+
 def closest_on_triangle(p, a, b, c):
-    """Ericson, Real-Time Collision Detection 5.1.5, one point one triangle."""
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = ab @ ap, ac @ ap
-    if d1 <= 0 and d2 <= 0:
-        return a
-    bp = p - b
-    d3, d4 = ab @ bp, ac @ bp
-    if d3 >= 0 and d4 <= d3:
-        return b
-    vc = d1 * d4 - d3 * d2
-    if vc <= 0 and d1 >= 0 and d3 <= 0:
-        return a + d1 / (d1 - d3) * ab
-    cp = p - c
-    d5, d6 = ab @ cp, ac @ cp
-    if d6 >= 0 and d5 <= d6:
-        return c
-    vb = d5 * d2 - d1 * d6
-    if vb <= 0 and d2 >= 0 and d6 <= 0:
-        return a + d2 / (d2 - d6) * ac
-    va = d3 * d6 - d5 * d4
-    if va <= 0 and (d4 - d3) >= 0 and (d5 - d6) >= 0:
-        return b + (d4 - d3) / ((d4 - d3) + (d5 - d6)) * (c - b)
-    denom = 1 / (va + vb + vc)
-    return a + ab * vb * denom + ac * vc * denom
+    """One point, one triangle, without Ericson's region tests: the foot of the perpendicular on the triangle's plane
+    when it falls inside the triangle, else the nearest of the closest points on the three edges."""
+    n = np.cross(b - a, c - a)
+    foot = p - (p - a) @ n / (n @ n) * n
+    u, v = np.linalg.lstsq(np.stack([b - a, c - a], axis=1), foot - a, rcond=None)[0]
+    if u >= 0 and v >= 0 and u + v <= 1:
+        return foot
+    return min((closest_on_segment(p, s, e) for s, e in ((a, b), (b, c), (c, a))), key=lambda q: np.linalg.norm(p - q))
 
 
 def brute_point_mesh(mesh, pts):
