@@ -40,22 +40,28 @@ __all__ = ["EvaluateOptions", "evaluate", "evaluate_detailed", "format_summary"]
 
 @dataclass(frozen=True)
 class EvaluateOptions:
-    """Everything that changes a score."""
+    """Everything that changes a score; invalid values raise :class:`~plantbench.errors.InputError`."""
 
     seed: int = 0
-    """seed of the surface samples"""
+    """Seed of the area-uniform surface samples (the same seed gives the same samples, so the same scores)."""
     gt_samples: int = 1_000_000
-    """area-uniform samples of the ground-truth surface (point/surface metrics; mesh_to_scan without a scan)"""
+    """Samples of the ground-truth surface, for the point and surface metrics and for mesh_to_scan when the case
+    has no scan."""
     recon_samples: int = 200_000
-    """area-uniform samples of the reconstructed mesh (surface metrics, mesh_to_scan.area_D_cm)"""
+    """Samples of the reconstructed mesh, for the surface metrics and mesh_to_scan.area_D_cm."""
     skeleton_step: float = 0.001
-    """skeleton sampling step in metres (Smart-Tree: 1 mm)"""
+    """Step, in metres, at which both skeletons are resampled along their edges (1 mm, as Smart-Tree)."""
     breast_height: float = 1.3
-    """DBH height above the lowest skeleton node, metres"""
+    """Height above the lowest skeleton node, in metres, at which DBH is measured."""
     max_dist_fraction: float = 0.1
-    """DTU distance cutoff as a fraction of plant height"""
+    """Distance cutoff of the DTU-style point metrics, as a fraction of the plant's height."""
     stava: StavaParams = field(default_factory=StavaParams)
-    """Stava similarity parameters"""
+    """Parameters of the Stava similarity."""
+
+    def __post_init__(self) -> None:
+        if (self.gt_samples < 1 or self.recon_samples < 1 or not self.skeleton_step > 0
+                or not self.breast_height >= 0 or not 0 < self.max_dist_fraction <= 1):
+            raise InputError(f"invalid evaluation options {self}")
 
 
 def evaluate(case_dir: str | os.PathLike, recon_dir: str | os.PathLike, *,
