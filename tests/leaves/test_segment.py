@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from reference_impl.leaves.params import LeafParams
-from reference_impl.leaves.refine import processing_order, template_points
-from reference_impl.leaves.segment import backproject, fit_planes, segment_view, superpixel_graph
+from reference_impl.leaves.refine import points_near, processing_order, refine_candidates, template_points
+from reference_impl.leaves.segment import Candidate, backproject, fit_planes, segment_view, superpixel_graph
 
 from .conftest import ring_cameras
 
@@ -99,3 +99,45 @@ def test_processing_order_and_template():
     t = template_points(2.0, 0.01)
     assert np.all((t[:, 0] / 0.5) ** 2 + (t[:, 1] / 0.25) ** 2 <= 1 + 1e-9)
     np.testing.assert_allclose(len(t) * 0.01**2, np.pi * 0.5 * 0.25, rtol=0.05)
+
+
+def test_points_near_is_the_union_of_balls(rng):
+    from scipy.spatial import cKDTree
+
+    pts = rng.uniform(-1, 1, (3000, 3))
+    placed = rng.uniform(-0.3, 0.3, (50, 3)) + [0.2, 0.0, -0.1]
+    brute = np.flatnonzero((np.linalg.norm(pts[:, None] - placed[None], axis=2) <= 0.07).any(axis=1))
+    assert points_near(cKDTree(pts), pts, placed, 0.07).tolist() == brute.tolist()
+    assert points_near(cKDTree(pts), pts, placed[:0], 0.07).size == 0
+
+
+def _ellipse_leaf(rng, n, centre, angle):
+    """n points filling a 0.10 x 0.05 m elliptical leaf in a tilted plane, its major axis at ``angle``."""
+    u = rng.uniform(-1, 1, (4 * n, 2))
+    u = u[(u**2).sum(1) <= 1][:n] * [0.05, 0.025]
+    c, s = np.cos(angle), np.sin(angle)
+    frame = np.array([[c, s, 0.2], [-s, c, 0.1], [0.0, 0.0, 1.0]])
+    frame, _ = np.linalg.qr(frame.T)
+    return centre + u[:, :1] * frame[:, 0] + u[:, 1:] * frame[:, 1], frame.T
+
+
+def test_refine_registers_the_template_to_a_few_points(rng):
+    """A candidate of 30 points of a leaf (as on an mvs cloud) whose plane is tilted 20 degrees and 5 mm off: the
+    template, registered to those points, claims the leaf's scene points seen from all views (400), which the
+    template placed on the candidate's own frame does not, and none of a neighbouring leaf's."""
+    from scipy.spatial import cKDTree
+
+    leaf, frame = _ellipse_leaf(rng, 400, np.zeros(3), 0.3)
+    other, _ = _ellipse_leaf(rng, 400, np.array([0.0, 0.0, 0.08]), 1.2)
+    pts = np.vstack([leaf, other])
+    tilt = np.radians(20)
+    off = np.array([[1, 0, 0], [0, np.cos(tilt), np.sin(tilt)], [0, -np.sin(tilt), np.cos(tilt)]]) @ frame
+    cand = Candidate(view=0, index=rng.choice(400, 30, replace=False), area=1e-3, centre=0.005 * frame[2], frame=off,
+                     semi_axes=(0.05, 0.025), confidence=0.9)
+    params = LeafParams()
+    leaves, skipped, _ = refine_candidates(pts, [cand], delta=0.004, params=params, leaf_length=0.1)
+    assert len(leaves) == 1 and skipped == {"duplicate": 0, "few_points_after_icp": 0}
+    assert np.isin(np.arange(400), leaves[0]).mean() >= 0.95 and not np.isin(np.arange(400, 800), leaves[0]).any()
+    unregistered = template_points(2.0, 0.01) * 0.1 @ off + cand.centre
+    near = points_near(cKDTree(pts), pts, unregistered, params.capture_distance * 0.004)
+    assert np.isin(np.arange(400), near).mean() < 0.8
