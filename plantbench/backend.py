@@ -31,7 +31,8 @@ from plantbench.paths import cache_dir
 
 __all__ = ["LLVM_CANDIDATES", "find_libllvm", "select_variant", "load_mitsuba", "apply_thread_budget",
            "BackendWarning", "LLVMTarget", "PINNED_TARGET", "requested_llvm_target", "pin_llvm_target",
-           "current_llvm_target", "load_drjit", "host_can_pin", "host_has", "host_cpu_name", "llvm_target_id"]
+           "current_llvm_target", "load_drjit", "host_can_pin", "host_has", "host_cpu_name", "llvm_target_id",
+           "thread_budget", "thread_map", "kdtree_workers"]
 
 LLVM_CANDIDATES = (
     "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1",
@@ -129,6 +130,19 @@ def thread_budget() -> int | None:
     scipy's cKDTree ``workers=-1``, Open3D's ray casting through Embree/TBB) are passed this explicitly."""
     n = os.environ.get("PLANTBENCH_THREADS", "")
     return int(n) if n.isdigit() and int(n) > 0 else None
+
+
+def thread_map(fn, items) -> list:
+    """``[fn(x) for x in items]`` on the process's thread budget (:func:`thread_budget`, else all cores), in order.
+    For independent work whose numpy/OpenCV kernels release the GIL; ``fn`` must not share random state."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    items = list(items)
+    n = min(len(items), thread_budget() or os.cpu_count() or 1)
+    if n <= 1:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(max_workers=n) as pool:
+        return list(pool.map(fn, items))
 
 
 def kdtree_workers() -> int:

@@ -54,8 +54,11 @@ def _kill(proc: subprocess.Popen) -> None:
     proc.wait()
 
 
-def job_environment(threads: int | None) -> dict[str, str]:
-    """The environment of a job process: this one's, with every thread pool capped at ``threads`` (None: no cap).
+def job_environment(threads: int | None, budget: int | None = None) -> dict[str, str]:
+    """The environment of a job process: this one's, with every thread pool capped at ``threads`` (None: no cap),
+    and plantbench's own pools (``PLANTBENCH_THREADS``: Dr.Jit, the mvs stage's views, k-d tree queries) at
+    ``budget`` when given. BLAS and OpenMP keep the fixed cap, so a job's bytes never depend on how many jobs ran
+    beside it; plantbench's pools give the same result on any number of threads.
 
     Several jobs run side by side when there are several workers; a job whose libraries each start one thread per
     core (BLAS, OpenMP, Dr.Jit/Mitsuba through ``PLANTBENCH_THREADS``, see :mod:`plantbench.backend`) would then
@@ -72,14 +75,16 @@ def job_environment(threads: int | None) -> dict[str, str]:
         for var in ("PLANTBENCH_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
                     "NUMEXPR_NUM_THREADS"):
             env[var] = n
+    if budget is not None:
+        env["PLANTBENCH_THREADS"] = str(max(1, int(budget)))
     return env
 
 
-def execute_job(cache: str, job: dict, threads: int | None = None) -> dict:
+def execute_job(cache: str, job: dict, threads: int | None = None, budget: int | None = None) -> dict:
     """Run one job (a :class:`Job` as a dict) unless it is cached; return its status record plus 'reused'.
 
     Safe to call from threads and from Dask workers (it only needs the shared cache folder). ``threads`` caps the
-    job's thread pools (:func:`job_environment`).
+    job's thread pools, ``budget`` plantbench's own (:func:`job_environment`; default ``threads``).
     """
     cache_p = Path(cache)
     kind, key = job["kind"], job["key"]
@@ -108,7 +113,7 @@ def execute_job(cache: str, job: dict, threads: int | None = None) -> dict:
     try:
         with open(tmp / "job.log", "w") as log:
             proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
-                                    stdin=subprocess.DEVNULL, env=job_environment(threads))
+                                    stdin=subprocess.DEVNULL, env=job_environment(threads, budget))
             with _LOCK:
                 _RUNNING[proc.pid] = proc
             try:
@@ -128,7 +133,8 @@ def execute_job(cache: str, job: dict, threads: int | None = None) -> dict:
         if _STOP.is_set():
             raise Interrupted(f"{kind} {key}")
         record["seconds"] = record.get("seconds") or (time.perf_counter() - t0)
-        record.update(started=started, finished=time.time())  # the run's timeline (epoch seconds)
+        # the run's timeline (epoch seconds) and the threads of plantbench's pools
+        record.update(started=started, finished=time.time(), threads=budget if budget is not None else threads)
         write_json(tmp / "status.json", record)
         try:
             os.replace(tmp, final)
@@ -213,12 +219,22 @@ class _Tally:
             self.progress(self.done, self.total, {"kind": job.kind, **rec})
 
 
+def _budget(cores: int, workers: int, threads: int | None, competing: int) -> int | None:
+    """Threads of plantbench's pools for a job that starts while ``competing`` jobs (it included) are running or
+    ready: the cores split among them, at least the worker's share, so that a job that runs alone (the end of a
+    run, a lone long chain) leaves no core idle."""
+    if threads is None:
+        return None
+    return max(threads, cores // max(1, min(workers, competing)))
+
+
 def _run_local(plan: Plan, cache: Path, workers: int, tally: _Tally) -> None:
     """Run the plan on ``workers`` threads: a job is submitted once its dependencies have finished, the ready job
     with the highest priority (then the earliest in the plan) first. On any error or Ctrl-C the running job
     processes are killed before it propagates."""
     workers = max(1, workers)
-    threads = max(1, (os.cpu_count() or 1) // workers) if workers > 1 else None
+    cores = os.cpu_count() or 1
+    threads = max(1, cores // workers) if workers > 1 else None
     priority = plan.priorities()
     children = plan.children()
     waiting = {k: set(job.deps) for k, job in plan.jobs.items()}
@@ -231,7 +247,8 @@ def _run_local(plan: Plan, cache: Path, workers: int, tally: _Tally) -> None:
             while ready or running:
                 while ready and len(running) < workers:
                     key = heapq.heappop(ready)[2]
-                    running[pool.submit(execute_job, str(cache), asdict(plan.jobs[key]), threads)] = key
+                    budget = _budget(cores, workers, threads, len(running) + 1 + len(ready))
+                    running[pool.submit(execute_job, str(cache), asdict(plan.jobs[key]), threads, budget)] = key
                 finished, _ = wait(running, return_when=FIRST_COMPLETED)
                 for fut in finished:
                     key = running.pop(fut)

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from plantbench.backend import thread_map
 from plantbench.cameras import Camera
 from plantbench.errors import InputError
 
@@ -137,9 +138,10 @@ def consistency_counts(
     if len(depths) != len(cameras):
         raise InputError("consistency_counts: one camera per depth map")
     clean = [np.where(np.isfinite(d), d, np.nan).astype(np.float64) for d in depths]
-    world = [_backproject(d, c) for d, c in zip(clean, cameras, strict=True)]
-    support, violations = [], []
-    for i, cam in enumerate(cameras):
+    world = thread_map(lambda dc: _backproject(*dc), list(zip(clean, cameras, strict=True)))
+
+    def counts(i: int) -> tuple[np.ndarray, np.ndarray]:
+        cam = cameras[i]
         h, w = clean[i].shape
         sup = np.zeros(h * w, np.int32)
         vio = np.zeros(h * w, np.int32)
@@ -179,6 +181,8 @@ def consistency_counts(
                     with np.errstate(invalid="ignore"):
                         agree |= (err < reproj_px) & (np.abs(b[:, 2] - zi[sel]) < rel_depth * zi[sel])
             sup[idx[sel[agree]]] += 1
-        support.append(sup.reshape(h, w))
-        violations.append(vio.reshape(h, w))
-    return support, violations
+        return sup.reshape(h, w), vio.reshape(h, w)
+
+    # each view's counts read the shared maps only: the views run on the job's threads with the same result
+    pairs = thread_map(counts, range(len(cameras)))
+    return [p[0] for p in pairs], [p[1] for p in pairs]

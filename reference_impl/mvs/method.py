@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from plantbench.backend import thread_map
 from plantbench.cameras import Camera, read_cameras
 from plantbench.errors import InputError
 from plantbench.io.atomic import atomic_write, write_json
@@ -84,15 +85,17 @@ def depth_maps(
     p = params or MVSParams()
     nb = neighbours if neighbours is not None else select_neighbours(cameras, p.neighbours, p.depth_params.depth_margin)
     centre = scene_centre(cameras)
-    maps, secs = [], []
-    for i, cam in enumerate(cameras):
+
+    def one(i: int) -> tuple[DepthMap, float]:
         t0 = time.perf_counter()
-        rng_i = seeded_rng(seed, "mvs", "patchmatch", i)
-        rng_range = depth_range(cam, centre, p.depth_params.depth_margin)
-        maps.append(estimate_depth(images[i], [images[j] for j in nb[i]], cam, [cameras[j] for j in nb[i]],
-                                   rng_range, p.depth_params, rng=rng_i))
-        secs.append(time.perf_counter() - t0)
-    return maps, nb, secs
+        rng_range = depth_range(cameras[i], centre, p.depth_params.depth_margin)
+        depth = estimate_depth(images[i], [images[j] for j in nb[i]], cameras[i], [cameras[j] for j in nb[i]],
+                               rng_range, p.depth_params, rng=seeded_rng(seed, "mvs", "patchmatch", i))
+        return depth, time.perf_counter() - t0
+
+    # views are independent (each has its own random stream), so they run on the job's threads with the same result
+    results = thread_map(one, range(len(cameras)))
+    return [r[0] for r in results], nb, [r[1] for r in results]
 
 
 def filter_depth_maps(

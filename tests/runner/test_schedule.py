@@ -35,14 +35,14 @@ def fake_jobs(monkeypatch):
     lock = threading.Lock()
     durations = {"a": 0.05, "a2": 0.05, "a3": 0.05, "b": 0.01, "b2": 0.3, "c": 0.01}
 
-    def fake(cache, job, threads=None):
+    def fake(cache, job, threads=None, budget=None):
         with lock:
             log.append(("start", job["key"], time.perf_counter()))
         time.sleep(durations[job["key"]])
         with lock:
             log.append(("end", job["key"], time.perf_counter()))
         return {"status": "ok", "kind": job["kind"], "key": job["key"], "seconds": 0.0, "reused": False,
-                "threads": threads}
+                "threads": budget if budget is not None else threads}
 
     monkeypatch.setattr(execute, "execute_job", fake)
     return log
@@ -77,7 +77,22 @@ def test_no_barrier_between_stages(fake_jobs, tmp_path):
     records, _ = execute.execute_plan(_plan(), tmp_path, workers=2)
     t = {(ev, k): v for ev, k, v in fake_jobs}
     assert t[("start", "a3")] < t[("end", "b2")]
-    assert {r["threads"] for r in records.values()} == {max(1, (execute.os.cpu_count() or 1) // 2)}
+    cores = execute.os.cpu_count() or 1
+    share = max(1, cores // 2)
+    assert {r["threads"] for r in records.values()} <= {share, max(share, cores)}
+    assert records["a"]["threads"] == records["b"]["threads"] == share  # three jobs ready at the start
+
+
+def test_a_job_alone_gets_every_core():
+    """plantbench's pools get the cores split among the jobs running or ready, at least the worker's share; BLAS
+    and OpenMP keep the share (their results could depend on the thread count)."""
+    assert execute._budget(16, 4, 4, competing=9) == 4
+    assert execute._budget(16, 4, 4, competing=2) == 8
+    assert execute._budget(16, 4, 4, competing=1) == 16
+    assert execute._budget(2, 2, 1, competing=1) == 2
+    assert execute._budget(2, 1, None, competing=1) is None
+    env = execute.job_environment(1, 2)
+    assert env["PLANTBENCH_THREADS"] == "2" and env["OMP_NUM_THREADS"] == env["OPENBLAS_NUM_THREADS"] == "1"
 
 
 def test_job_environment_caps_thread_pools():
