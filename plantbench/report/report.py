@@ -406,9 +406,10 @@ def write_report(run_dir: str | os.PathLike, formats: tuple[str, ...] = FORMATS,
     if note:
         origin = f"{origin}\n\n{note}" if origin else note
     figures = _figures(table, out / "figures", sweep)
-    distances = distance_figure(run_dir, out / "figures" / "distances.png")
-    if distances is not None:
-        figures.append(distances)
+    for extra in (distance_figure(run_dir, out / "figures" / "distances.png"),
+                  timeline_figure(run_dir, out / "figures" / "timeline.png")):
+        if extra is not None:
+            figures.append(extra)
     written = list(figures)
     if "family" in table.columns and table["family"].nunique() > 1:
         path = out / "family_study.md"
@@ -531,6 +532,52 @@ def _sample_views(run_dir: Path, out: Path, limit: int = 6) -> list[str]:
             shutil.copyfile(img, dst)
             rels.append(f"figures/{dst.name}")
     return rels
+
+
+def timeline_figure(run_dir: str | os.PathLike, path: str | os.PathLike) -> Path | None:
+    """The run's timeline (timeline.csv): one bar per job computed by this run, on the lane of the worker slot it
+    ran in (first free slot in start order), coloured by stage or method, labelled with the threads it had when more
+    than one. Returns the PNG written, or None when the run computed nothing."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import pandas as pd
+
+    file = Path(run_dir) / "timeline.csv"
+    if not file.is_file():
+        return None
+    jobs = pd.read_csv(file)
+    jobs = jobs[~jobs["reused"] & jobs["started"].notna()].sort_values("started")
+    if jobs.empty:
+        return None
+    t0 = jobs["started"].min()
+    start, end = (jobs["started"] - t0) / 60, (jobs["finished"] - t0) / 60
+    lanes: list[float] = []
+    lane_of = []
+    for a, b in zip(start, end):
+        i = next((k for k, last in enumerate(lanes) if last <= a + 1e-3), len(lanes))
+        lanes[i:i + 1] = [b]
+        lane_of.append(i)
+    names = list(dict.fromkeys(jobs["job"]))
+    colours = {n: plt.get_cmap("tab10")(k % 10) for k, n in enumerate(names)}
+    fig, ax = plt.subplots(figsize=(10, 0.5 * len(lanes) + 1.6), layout="constrained")
+    for a, b, lane, name, threads in zip(start, end, lane_of, jobs["job"], jobs["threads"]):
+        ax.barh(lane, b - a, left=a, height=0.8, color=colours[name], edgecolor="white", linewidth=0.3)
+        if pd.notna(threads) and threads > 1 and b - a > 0.3:
+            ax.text(a + 0.05, lane, f"{int(threads)}t", va="center", fontsize=6, color="white")
+    wall = float(end.max())
+    busy = float((end - start).sum())
+    ax.set(xlabel="minutes since the first job started", ylabel="worker slot", yticks=range(len(lanes)),
+           title=f"{len(jobs)} jobs computed in {wall:.1f} min; busy {busy / max(wall, 1e-9):.2f} slots on average")
+    ax.legend(handles=[matplotlib.patches.Patch(color=colours[n], label=n) for n in names], ncol=min(len(names), 8),
+              fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.35 if len(lanes) < 3 else -0.2), frameon=False)
+    ax.invert_yaxis()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 def distance_figure(run_dir: str | os.PathLike, path: str | os.PathLike, *, max_cases: int = 4,

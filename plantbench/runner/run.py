@@ -135,6 +135,7 @@ def run_suite(
     cell_metrics = _read_cell_metrics(plan, records, cache)
     rows = _result_rows(plan, records, cell_metrics, cache, run_dir / "logs")
     _write_cells(plan, records, cache, run_dir)
+    _write_timeline(plan, records, run_dir)
     table = _write_results(rows, run_dir)
     seconds = time.perf_counter() - t0
     meta.update(finished=time.strftime("%Y-%m-%dT%H:%M:%S%z"), seconds=seconds,
@@ -221,6 +222,25 @@ def _write_cells(plan: Plan, records: dict[str, dict], cache: Path, run_dir: Pat
          "recon": os.path.relpath(job_folder(cache, "method", c.recon_key), run_dir),
          "status": status(c)}
         for c in plan.cells])
+
+
+TIMELINE_COLUMNS = ["kind", "job", "species", "key", "status", "reused", "started", "finished", "seconds", "threads"]
+
+
+def _write_timeline(plan: Plan, records: dict[str, dict], run_dir: Path) -> None:
+    """timeline.csv: every job of the run with its start and end (epoch seconds; a reused job keeps the times of
+    the run that computed it), its status and the threads of plantbench's pools it had."""
+    import pandas as pd
+
+    rows = []
+    for key, job in plan.jobs.items():
+        rec = records.get(key, {})
+        rows.append({"kind": job.kind, "job": job.params.get("method", job.kind),
+                     "species": job.params.get("species", ""), "key": key, "status": rec.get("status"),
+                     "reused": bool(rec.get("reused")), "started": rec.get("started"),
+                     "finished": rec.get("finished"), "seconds": rec.get("seconds"), "threads": rec.get("threads")})
+    with atomic_write(run_dir / "timeline.csv", "w") as fh:
+        pd.DataFrame(rows, columns=TIMELINE_COLUMNS).to_csv(fh, index=False)
 
 
 def _write_results(rows: list[dict], run_dir: Path):

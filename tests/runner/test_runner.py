@@ -57,6 +57,18 @@ def test_failures_become_cells_and_rerun_reuses_everything(tmp_path, scripts):
 
     png = distance_figure(res.run_dir, tmp_path / "distances.png")
     assert png is not None and png.stat().st_size > 1000
+    # timeline.csv: one row per job with the times its status.json holds; the report draws it
+    timeline = pd.read_csv(res.run_dir / "timeline.csv")
+    ran = timeline[timeline["started"].notna()]
+    assert len(timeline) == len(recs) + 3 and set(ran["key"]) == {r["key"] for r in recs}  # 3 skipped: no times
+    by_key = {r["key"]: r for r in recs}
+    assert all(row.started == by_key[row.key]["started"] and row.status == by_key[row.key]["status"]
+               for row in ran.itertuples())
+    assert set(timeline["job"]) >= {"plant", "capture", "gt", "metrics"} and not timeline["reused"].any()
+    from plantbench.report.report import timeline_figure
+
+    png = timeline_figure(res.run_dir, tmp_path / "timeline.png")
+    assert png is not None and png.stat().st_size > 1000
     # a second run recomputes nothing
     again = run_suite(suite, tmp_path / "runs", workers=2)
     assert again.stats["computed"] == 0 and again.stats["reused"] == res.stats["computed"] + res.stats["reused"]
