@@ -110,9 +110,11 @@ def _read_masks(case: Path, cameras: list, images: list[str]) -> list[np.ndarray
     return masks
 
 
-def _skeleton_metrics(values: dict, reasons: dict, plant, skeleton, options: EvaluateOptions, no_plant: str) -> None:
+def _skeleton_metrics(values: dict, reasons: dict, plant, skeleton, samples, options: EvaluateOptions,
+                      no_plant: str) -> None:
     """The ``skeleton.*`` metrics: the reconstruction's own traits (height, branches, lengths, DBH, crown area) with
-    or without ground truth; P/R/F1 and the errors against the ground truth only with it."""
+    or without ground truth; P/R/F1 and the errors against the ground truth only with it. ``samples``: the
+    skeleton's (:func:`~plantbench.metrics.skeleton.skeleton_samples`)."""
     from plantbench.metrics.skeleton import crown_area, skeleton_attributes, skeleton_prf
 
     if skeleton is None:
@@ -128,7 +130,7 @@ def _skeleton_metrics(values: dict, reasons: dict, plant, skeleton, options: Eva
         _set(values, reasons, "skeleton", traits, "trunk below breast height, or no branch")
         _set(values, reasons, "skeleton", None, no_plant)  # P/R/F1 and every error
         return
-    prf = skeleton_prf(plant.skeleton, skeleton, step=options.skeleton_step,
+    prf = skeleton_prf(plant.skeleton, samples, step=options.skeleton_step,
                        height=plant.height if plant.height > 0 else None)
     a_gt = skeleton_attributes(plant.skeleton, breast_height=options.breast_height)
 
@@ -147,21 +149,21 @@ def _skeleton_metrics(values: dict, reasons: dict, plant, skeleton, options: Eva
     }, "trunk below breast height, or no branch")
 
 
-def _support_metrics(values: dict, reasons: dict, skeleton, observed: np.ndarray | None,
+def _support_metrics(values: dict, reasons: dict, samples, observed: np.ndarray | None,
                      options: EvaluateOptions) -> None:
     """``support.*``: the GT-free share of the skeleton's length near an observed point (the scan, or the input
-    cloud), tolerances fractions of the observed height above z = 0."""
+    cloud), tolerances fractions of the observed height above z = 0. ``samples``: the skeleton's
+    (:func:`~plantbench.metrics.skeleton.skeleton_samples`), None without a skeleton."""
     from plantbench.geometry.clouds import cloud_height
     from plantbench.metrics.points import tau_label
     from plantbench.metrics.skeleton import HEIGHT_FRACTIONS, skeleton_support
 
     obs_height = cloud_height(observed) if observed is not None and len(observed) else 0.0
-    if skeleton is None or observed is None or obs_height <= 0:
-        _set(values, reasons, "support", None, "no skeleton.ply in the output" if skeleton is None
+    if samples is None or observed is None or obs_height <= 0:
+        _set(values, reasons, "support", None, "no skeleton.ply in the output" if samples is None
              else "no scan/scan.ply or observed cloud above the ground")
         return
-    shares = skeleton_support(skeleton, observed, tolerances=tuple(f * obs_height for f in HEIGHT_FRACTIONS),
-                              step=options.skeleton_step)
+    shares = skeleton_support(samples, observed, tolerances=tuple(f * obs_height for f in HEIGHT_FRACTIONS))
     _set(values, reasons, "support", None if shares is None else
          {f"skeleton@{tau_label(f)}": v for f, v in zip(HEIGHT_FRACTIONS, shares)}, "the skeleton has no length")
 
@@ -186,8 +188,9 @@ def _gt_surface_sample(plant, options: EvaluateOptions) -> tuple[np.ndarray, np.
     return gt_pts, gt_lab
 
 
-def _reprojection_metrics(values: dict, reasons: dict, case: Path, mesh) -> None:
-    """``reprojection.*``: the mesh's silhouettes against the case's instance masks (no ground truth needed)."""
+def _reprojection_metrics(values: dict, reasons: dict, case: Path, mesh, scene) -> None:
+    """``reprojection.*``: the mesh's silhouettes against the case's instance masks (no ground truth needed).
+    ``scene``: the mesh's ray-casting scene (:func:`~plantbench.metrics.surface.raycasting_scene`), or None."""
     from plantbench.cameras import read_cameras
     from plantbench.metrics.reprojection import render_silhouettes, reprojection_error
 
@@ -197,7 +200,7 @@ def _reprojection_metrics(values: dict, reasons: dict, case: Path, mesh) -> None
              "no mesh.ply in the output" if mesh is None else "no views/cameras.json or views/instance/")
         return
     cameras, images = read_cameras(cam_path)
-    res = reprojection_error(_read_masks(case, cameras, images), render_silhouettes(mesh, cameras))
+    res = reprojection_error(_read_masks(case, cameras, images), render_silhouettes(mesh, cameras, scene=scene))
     err = res.per_view_error[np.isfinite(res.per_view_error)]
     _set(values, reasons, "reprojection", {
         "error": res.error, "error_max": float(err.max()) if len(err) else None,
@@ -224,13 +227,12 @@ def _leaf_metrics(values: dict, reasons: dict, plant, leaves, no_plant: str) -> 
     _set(values, reasons, "leaves", {**counts, **det}, "no ground-truth leaf")
 
 
-def _cloud_scores(values: dict, reasons: dict, plant, points, mesh, gt_sample: tuple, options: EvaluateOptions,
-                  no_plant: str) -> None:
-    """``points.*`` (the method's points.ply) and ``surface.*`` (a sample of its mesh) against the ground-truth
-    surface sample ``gt_sample`` (points, labels)."""
+def _cloud_scores(values: dict, reasons: dict, plant, points, mesh, gt_sample: tuple, recon_sample,
+                  options: EvaluateOptions, no_plant: str) -> None:
+    """``points.*`` (the method's points.ply) and ``surface.*`` (``recon_sample``, the sample of its mesh) against
+    the ground-truth surface sample ``gt_sample`` (points, labels)."""
     from plantbench.metrics.points import cloud_metrics
-    from plantbench.metrics.surface import kdtree, sample_surface
-    from plantbench.seeding import rng as make_rng
+    from plantbench.metrics.surface import kdtree
 
     gt_pts, gt_lab = gt_sample
     height = plant.height if plant is not None else 0.0
@@ -249,10 +251,40 @@ def _cloud_scores(values: dict, reasons: dict, plant, points, mesh, gt_sample: t
     if mesh is None or plant is None or height <= 0:
         _set(values, reasons, "surface", None, "no mesh.ply in the output" if mesh is None else no_plant)
     else:
-        pts, _ = sample_surface(mesh, options.recon_samples, make_rng(options.seed, "metrics", "recon-surface"))
-        _set(values, reasons, "surface", cloud_metrics(gt_pts, gt_lab, pts, height=height,
+        _set(values, reasons, "surface", cloud_metrics(gt_pts, gt_lab, recon_sample, height=height,
                                                        max_dist_fraction=options.max_dist_fraction, gt_tree=gt_tree),
              "no ground-truth points of this part, or an empty reconstructed surface")
+
+
+def _recon_sample(mesh, options: EvaluateOptions) -> np.ndarray:
+    """The area-uniform sample of the reconstructed mesh that mesh_to_scan's area_D and the surface metrics share."""
+    from plantbench.metrics.surface import sample_surface
+    from plantbench.seeding import rng as make_rng
+
+    return sample_surface(mesh, options.recon_samples, make_rng(options.seed, "metrics", "recon-surface"))[0]
+
+
+def _mesh_metrics(values: dict, reasons: dict, plant, mesh, scan: np.ndarray | None, recon_sample, scene,
+                  no_plant: str) -> None:
+    """``mesh_to_scan.*`` against ``scan`` (the case's scan, or the ground-truth surface sample) and
+    ``mesh_to_surface.*`` against the ground-truth meshes; ``recon_sample`` and ``scene``: the mesh's shared
+    surface sample and ray-casting scene."""
+    from plantbench.metrics.surface import distance_stats_cm, mesh_to_scan, point_to_mesh_distances
+    from plantbench.plant import TriMesh
+
+    if mesh is None:
+        _set(values, reasons, "mesh_to_scan", None, "no mesh.ply in the output")
+    elif scan is None or len(scan) == 0:
+        _set(values, reasons, "mesh_to_scan", None, "no scan/scan.ply and no ground-truth surface")
+    else:
+        m2s = mesh_to_scan(scan, mesh, rng=None, area_sample=recon_sample, scene=scene)
+        _set(values, reasons, "mesh_to_scan", dict(vars(m2s)), "empty mesh (no vertices or no triangles)")
+    gt_mesh = TriMesh.concatenate([plant.branch_mesh, plant.leaf_mesh]) if plant is not None else None
+    if mesh is None or gt_mesh is None or len(gt_mesh.faces) == 0:
+        _set(values, reasons, "mesh_to_surface", None, "no mesh.ply in the output" if mesh is None else no_plant)
+    else:
+        D, s = distance_stats_cm(point_to_mesh_distances(gt_mesh, mesh.vertices))
+        _set(values, reasons, "mesh_to_surface", {"D_cm": D, "sigma_cm": s}, "empty mesh (no vertices)")
 
 
 def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike, *,
@@ -264,10 +296,9 @@ def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike,
     ``scan/scan.ply``."""
     from plantbench.io.plantio import read_plant, read_reconstruction
     from plantbench.io.ply import read_points
+    from plantbench.metrics.skeleton import skeleton_samples
     from plantbench.metrics.stava import stava_similarities
-    from plantbench.metrics.surface import distance_stats_cm, mesh_to_scan, point_to_mesh_distances
-    from plantbench.plant import TriMesh
-    from plantbench.seeding import rng as make_rng
+    from plantbench.metrics.surface import raycasting_scene
 
     case, out = Path(case_dir), Path(recon_dir)
     if not case.is_dir():
@@ -287,35 +318,25 @@ def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike,
         both = stava_similarities(plant.skeleton, recon.skeleton, params=options.stava)
         for prefix, res in zip(("stava", "stava_nosplit"), both):
             _set(values, reasons, prefix, res.as_dict())
-    _skeleton_metrics(values, reasons, plant, recon.skeleton, options, no_plant)
+    samples = skeleton_samples(recon.skeleton, options.skeleton_step) if recon.skeleton is not None else None
+    _skeleton_metrics(values, reasons, plant, recon.skeleton, samples, options, no_plant)
 
     # ---- GT-free support of the skeleton by the observed points
     scan_path = case / "scan" / "scan.ply"
     scan_pts = read_points(scan_path)[0] if scan_path.is_file() else None
-    _support_metrics(values, reasons, recon.skeleton, scan_pts if observed is None else observed, options)
+    _support_metrics(values, reasons, samples, scan_pts if observed is None else observed, options)
 
     gt_pts, gt_lab = _gt_surface_sample(plant, options) if plant is not None else (None, None)
 
-    # ---- mesh to scan / surface
-    scan = scan_pts if scan_pts is not None else gt_pts
-    if mesh is None:
-        _set(values, reasons, "mesh_to_scan", None, "no mesh.ply in the output")
-    elif scan is None or len(scan) == 0:
-        _set(values, reasons, "mesh_to_scan", None, "no scan/scan.ply and no ground-truth surface")
-    else:
-        m2s = mesh_to_scan(scan, mesh, rng=make_rng(options.seed, "metrics", "recon-surface"),
-                           n_area_samples=options.recon_samples)
-        _set(values, reasons, "mesh_to_scan", dict(vars(m2s)), "empty mesh (no vertices or no triangles)")
-    gt_mesh = TriMesh.concatenate([plant.branch_mesh, plant.leaf_mesh]) if plant is not None else None
-    if mesh is None or gt_mesh is None or len(gt_mesh.faces) == 0:
-        _set(values, reasons, "mesh_to_surface", None, "no mesh.ply in the output" if mesh is None else no_plant)
-    else:
-        D, s = distance_stats_cm(point_to_mesh_distances(gt_mesh, mesh.vertices))
-        _set(values, reasons, "mesh_to_surface", {"D_cm": D, "sigma_cm": s}, "empty mesh (no vertices)")
-
-    _reprojection_metrics(values, reasons, case, mesh)
+    # ---- the reconstructed surface: mesh to scan / to the ground-truth surface, reprojection, leaves, clouds
+    wanted = mesh is not None and (plant is not None or scan_pts is not None)  # by mesh_to_scan or surface.*
+    recon_sample = _recon_sample(mesh, options) if wanted else None
+    scene = raycasting_scene(mesh) if mesh is not None and len(mesh.faces) else None  # (its BVH: on first use)
+    _mesh_metrics(values, reasons, plant, mesh, scan_pts if scan_pts is not None else gt_pts, recon_sample, scene,
+                  no_plant)
+    _reprojection_metrics(values, reasons, case, mesh, scene)
     _leaf_metrics(values, reasons, plant, recon.leaves, no_plant)
-    _cloud_scores(values, reasons, plant, recon.points, mesh, (gt_pts, gt_lab), options, no_plant)
+    _cloud_scores(values, reasons, plant, recon.points, mesh, (gt_pts, gt_lab), recon_sample, options, no_plant)
     missing = set(METRICS) - set(values)
     if missing:
         raise AssertionError(f"evaluate did not set {sorted(missing)}")

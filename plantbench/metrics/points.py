@@ -73,7 +73,9 @@ def cloud_metrics(gt_points: np.ndarray, gt_labels: np.ndarray, pred_points: np.
     gt_tree = kdtree(gt) if gt_tree is None else gt_tree  # each set's tree answers the other's queries, orders its own
     pred_tree = kdtree(pred) if len(pred) else None
     d_pred, nearest = nearest_distances(gt, pred, tree=gt_tree, query_tree=pred_tree)
-    d_gt = nearest_distances(pred, gt, tree=pred_tree, query_tree=gt_tree)[0] if len(pred) \
+    # completeness clips at max_dist and recall compares with tau: a ground-truth point beyond both may stop early
+    d_gt = nearest_distances(pred, gt, tree=pred_tree, query_tree=gt_tree,
+                             within=max([max_dist] + [t * height for t in tau_fractions]))[0] if len(pred) \
         else np.full(len(gt), np.inf)
     out: dict[str, float | None] = {}
     for part, sel_gt, sel_pred in [("all", slice(None), slice(None))] + [

@@ -62,21 +62,21 @@ def reprojection_error(gt_masks, pred_masks) -> ReprojectionResult:
     return ReprojectionResult(err, iou, float(err[ok].mean()) if ok.any() else None, float(iou.mean()))
 
 
-def render_silhouettes(mesh: TriMesh, cameras: list[Camera]) -> list[np.ndarray]:
+def render_silhouettes(mesh: TriMesh, cameras: list[Camera], *, scene=None) -> list[np.ndarray]:
     """Binary silhouette of a mesh in each camera: exact ray casting through every pixel centre (Open3D).
 
     Returns one (height, width) bool array per camera; all False for a mesh without triangles.
+    scene : :func:`plantbench.metrics.surface.raycasting_scene` of ``mesh`` when the caller has one.
     """
     if len(mesh.faces) == 0:
         return [np.zeros((c.height, c.width), bool) for c in cameras]
     import open3d as o3d
 
     from plantbench.backend import open3d_threads
+    from plantbench.metrics.surface import raycasting_scene
 
     nthreads = open3d_threads()
-    scene = o3d.t.geometry.RaycastingScene(nthreads=nthreads)
-    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-                        o3d.core.Tensor(mesh.faces.astype(np.uint32)))
+    scene = raycasting_scene(mesh) if scene is None else scene
     out = []
     for cam in cameras:
         origin, dirs = cam.pixel_rays()

@@ -31,18 +31,74 @@ truth.
 
 from __future__ import annotations
 
+import functools
+from dataclasses import dataclass
+
 import numpy as np
 
 from plantbench.plant import Skeleton, check_shape
 from plantbench.skeletons import branch_chains, children_lists
 
-__all__ = ["THRESHOLDS", "HEIGHT_FRACTIONS", "sample_skeleton", "sample_weights", "skeleton_prf",
-           "skeleton_attributes", "dbh", "skeleton_support", "crown_area"]
+__all__ = ["THRESHOLDS", "HEIGHT_FRACTIONS", "SkeletonSamples", "skeleton_samples", "sample_skeleton",
+           "sample_weights", "skeleton_prf", "skeleton_attributes", "dbh", "skeleton_support", "crown_area"]
 
 THRESHOLDS = (0.5, 1.0, 2.0)
 """Radius-relative tolerances of the Smart-Tree protocol (multiples of the local ground-truth radius)."""
 HEIGHT_FRACTIONS = (0.005, 0.01, 0.02)
 """Height-relative tolerances of the volume-weighted scores (fractions of the ground-truth plant height)."""
+
+
+@dataclass(frozen=True)
+class SkeletonSamples:
+    """A skeleton sampled every ``step`` metres along each edge (parent end included), plus every node
+    (:func:`skeleton_samples`): what the sample-based skeleton metrics need of it, built once per skeleton.
+
+    points : (k, 3) float; radii : (k,) float, linearly interpolated along the edge
+    length : (k,) float, the edge length each sample covers; 0 for the node samples, which come last
+    edge_samples : how many samples lie on edges (the first ones)
+    """
+
+    points: np.ndarray
+    radii: np.ndarray
+    length: np.ndarray
+    edge_samples: int
+
+    @functools.cached_property
+    def tree(self):
+        """k-d tree over the points (:func:`plantbench.metrics.surface.kdtree`), built on first use."""
+        from plantbench.metrics.surface import kdtree
+
+        return kdtree(self.points)
+
+    def weights(self, volume: bool = True) -> np.ndarray:
+        """:func:`sample_weights`: the covered length, times pi r^2 when ``volume``; 0 for the node samples."""
+        if not volume:
+            return self.length
+        e = self.edge_samples
+        return np.concatenate([self.length[:e] * np.pi * self.radii[:e] ** 2, np.zeros(len(self.length) - e)])
+
+
+def skeleton_samples(skeleton: Skeleton, step: float = 0.001) -> SkeletonSamples:
+    """Samples every ``step`` metres along each edge (parent end included), plus every node: see
+    :class:`SkeletonSamples`."""
+    if len(skeleton) == 0:
+        return SkeletonSamples(np.zeros((0, 3)), np.zeros(0), np.zeros(0), 0)
+    e = skeleton.edges
+    pos, rad = skeleton.positions, skeleton.radii
+    p0, r0 = pos[e[:, 0]], rad[e[:, 0]]
+    dp, dr = pos[e[:, 1]] - p0, rad[e[:, 1]] - r0
+    length = np.linalg.norm(dp, axis=1)
+    n = np.maximum(1, np.ceil(length / step).astype(np.int64))
+    seg = np.repeat(np.arange(len(e)), n)
+    t = (np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(n, n)
+    pts = p0[seg] + t[:, None] * dp[seg]
+    return SkeletonSamples(points=np.concatenate([pts, pos]), radii=np.concatenate([r0[seg] + t * dr[seg], rad]),
+                           length=np.concatenate([np.repeat(length / n, n), np.zeros(len(skeleton))]),
+                           edge_samples=len(pts))
+
+
+def _samples(skeleton: Skeleton | SkeletonSamples, step: float) -> SkeletonSamples:
+    return skeleton if isinstance(skeleton, SkeletonSamples) else skeleton_samples(skeleton, step)
 
 
 def sample_skeleton(skeleton: Skeleton, step: float = 0.001) -> tuple[np.ndarray, np.ndarray]:
@@ -53,33 +109,14 @@ def sample_skeleton(skeleton: Skeleton, step: float = 0.001) -> tuple[np.ndarray
     points : (k, 3) float
     radii : (k,) float
     """
-    if len(skeleton) == 0:
-        return np.zeros((0, 3)), np.zeros(0)
-    e = skeleton.edges
-    p0, p1 = skeleton.positions[e[:, 0]], skeleton.positions[e[:, 1]]
-    r0, r1 = skeleton.radii[e[:, 0]], skeleton.radii[e[:, 1]]
-    n = np.maximum(1, np.ceil(np.linalg.norm(p1 - p0, axis=1) / step).astype(np.int64))
-    seg = np.repeat(np.arange(len(e)), n)
-    t = (np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(n, n)
-    pts = p0[seg] + t[:, None] * (p1[seg] - p0[seg])
-    rad = r0[seg] + t * (r1[seg] - r0[seg])
-    return np.concatenate([pts, skeleton.positions]), np.concatenate([rad, skeleton.radii])
+    s = skeleton_samples(skeleton, step)
+    return s.points, s.radii
 
 
 def sample_weights(skeleton: Skeleton, step: float = 0.001, *, volume: bool = True) -> np.ndarray:
     """The weight of each sample of :func:`sample_skeleton` (same order): the edge length it covers, times pi r^2
     when ``volume``; 0 for the node samples."""
-    if len(skeleton) == 0:
-        return np.zeros(0)
-    e = skeleton.edges
-    p0, p1 = skeleton.positions[e[:, 0]], skeleton.positions[e[:, 1]]
-    length = np.linalg.norm(p1 - p0, axis=1)
-    n = np.maximum(1, np.ceil(length / step).astype(np.int64))
-    w = np.repeat(length / n, n)
-    if volume:
-        _, rad = sample_skeleton(skeleton, step)
-        w = w * np.pi * rad[: len(w)] ** 2
-    return np.concatenate([w, np.zeros(len(skeleton))])
+    return skeleton_samples(skeleton, step).weights(volume)
 
 
 def _weighted_share(weights: np.ndarray, inside: np.ndarray) -> float:
@@ -87,45 +124,45 @@ def _weighted_share(weights: np.ndarray, inside: np.ndarray) -> float:
     return float(weights[inside].sum()) / total if total > 0 else 0.0
 
 
-def skeleton_prf(gt: Skeleton, pred: Skeleton, *, thresholds: tuple[float, ...] = THRESHOLDS, step: float = 0.001,
-                 height: float | None = None, height_fractions: tuple[float, ...] = HEIGHT_FRACTIONS
-                 ) -> dict[str, float]:
+def skeleton_prf(gt: Skeleton | SkeletonSamples, pred: Skeleton | SkeletonSamples, *,
+                 thresholds: tuple[float, ...] = THRESHOLDS, step: float = 0.001, height: float | None = None,
+                 height_fractions: tuple[float, ...] = HEIGHT_FRACTIONS) -> dict[str, float]:
     """Keys 'precision@t', 'recall@t', 'f1@t' for each threshold t (multiples of the local ground-truth radius) and,
     when ``height`` (the ground-truth plant height, metres) is given, 'vprecision@f', 'vrecall@f', 'vf1@f' for each
-    height fraction f (labelled as :func:`plantbench.metrics.points.tau_label` does: '1%')."""
+    height fraction f (labelled as :func:`plantbench.metrics.points.tau_label` does: '1%').
+
+    ``gt`` and ``pred`` may be given as their samples (:func:`skeleton_samples`, when the caller shares them with
+    other metrics); ``step`` is then theirs."""
+    from plantbench.errors import InputError
     from plantbench.metrics.points import tau_label
-    from plantbench.metrics.surface import kdtree, nearest_distances
+    from plantbench.metrics.surface import threshold_distances
 
-    g, rg = sample_skeleton(gt, step)
-    p, _ = sample_skeleton(pred, step)
-    out: dict[str, float] = {}
-    if len(g) == 0:
-        from plantbench.errors import InputError
-
+    g, p = _samples(gt, step), _samples(pred, step)
+    if len(g.points) == 0:
         raise InputError("skeleton_prf: the ground-truth skeleton is empty")
-    if len(p):
-        tg, tp = kdtree(g), kdtree(p)
-        d_p, nearest = nearest_distances(g, p, tree=tg, query_tree=tp)
-        d_g, _ = nearest_distances(p, g, tree=tp, query_tree=tg)
+    if height is not None and not height > 0:
+        raise InputError(f"skeleton_prf: height must be > 0, got {height}")
+    taus = [f * height for f in height_fractions] if height is not None else []
+    out: dict[str, float] = {}
+    if len(p.points):
+        d_p, r_p = _pred_to_gt(g, p, max(taus, default=None), max(thresholds, default=0.0))
+        d_g = threshold_distances(p.points, g.points, np.concatenate(
+            [np.multiply.outer(g.radii, thresholds), np.broadcast_to(taus, (len(g.points), len(taus)))], axis=1),
+            tree=p.tree, query_tree=g.tree)
     for t in thresholds:
-        if len(p):
-            prec = float(np.mean(d_p < t * rg[nearest]))
-            rec = float(np.mean(d_g < t * rg))
+        if len(p.points):
+            prec = float(np.mean(d_p < t * r_p))
+            rec = float(np.mean(d_g < t * g.radii))
         else:
             prec = rec = 0.0
         out[f"precision@{t:.1f}"] = prec
         out[f"recall@{t:.1f}"] = rec
         out[f"f1@{t:.1f}"] = 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0
     if height is not None:
-        if not height > 0:
-            from plantbench.errors import InputError
-
-            raise InputError(f"skeleton_prf: height must be > 0, got {height}")
-        wg, wp = sample_weights(gt, step), sample_weights(pred, step)
-        for f in height_fractions:
-            tau = f * height
-            prec = _weighted_share(wp, d_p < tau) if len(p) else 0.0
-            rec = _weighted_share(wg, d_g < tau) if len(p) else 0.0
+        wg, wp = g.weights(), p.weights()
+        for f, tau in zip(height_fractions, taus):
+            prec = _weighted_share(wp, d_p < tau) if len(p.points) else 0.0
+            rec = _weighted_share(wg, d_g < tau) if len(p.points) else 0.0
             lab = tau_label(f)
             out[f"vprecision@{lab}"] = prec
             out[f"vrecall@{lab}"] = rec
@@ -133,27 +170,54 @@ def skeleton_prf(gt: Skeleton, pred: Skeleton, *, thresholds: tuple[float, ...] 
     return out
 
 
-def skeleton_support(skeleton: Skeleton, observed: np.ndarray, *, tolerances: tuple[float, ...],
+def _pred_to_gt(g: SkeletonSamples, p: SkeletonSamples, within: float | None, factor: float
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """What :func:`skeleton_prf`'s precision compares with its tolerances: the distance from each predicted sample
+    to the nearest ground-truth sample and that sample's radius, exact wherever a test can pass (a distance up to
+    ``within``, the largest height-relative tolerance, or below ``factor`` times the radius, the largest
+    radius-relative one), else (inf, 0).
+
+    The search stops at ``within``: a far query costs the most, and most far ones cannot pass. A predicted sample
+    beyond it can only pass at a thick ground-truth sample (factor r > within): it is measured against those alone
+    first, and searched exactly only when one is within reach.
+    """
+    from plantbench.metrics.surface import nearest_distances
+
+    d, i = nearest_distances(g.points, p.points, tree=g.tree, query_tree=p.tree, within=within)
+    thick = factor * g.radii > within if within is not None else np.zeros(len(g.points), bool)
+    far = np.isinf(d)
+    if far.any() and thick.any():
+        reach = factor * float(g.radii.max())
+        near_thick = np.isfinite(nearest_distances(g.points[thick], p.points, query_tree=p.tree, within=reach,
+                                                   select=far)[0])
+        d_t, i_t = nearest_distances(g.points, p.points, tree=g.tree, query_tree=p.tree, within=reach,
+                                     select=near_thick)
+        d[near_thick], i[near_thick] = d_t[near_thick], i_t[near_thick]
+    return d, np.append(g.radii, 0.0)[i]
+
+
+def skeleton_support(skeleton: Skeleton | SkeletonSamples, observed: np.ndarray, *, tolerances: tuple[float, ...],
                      step: float = 0.001) -> list[float] | None:
     """Share of the skeleton's length within each of ``tolerances`` (metres) of an observed point: the GT-free check.
 
-    skeleton : the reconstruction; observed : (m, 3) float, the points the capture gave (the scan, or the input cloud).
+    skeleton : the reconstruction (or its samples, :func:`skeleton_samples`; ``step`` is then theirs);
+    observed : (m, 3) float, the points the capture gave (the scan, or the input cloud).
     A branch through empty space counts against the method although there is no ground truth. Returns one share per
-    tolerance (one nearest-neighbour query for all), or None when the skeleton has no length or there is no observed
-    point.
+    tolerance (the distances only as far as the tolerances tell them apart), or None when the skeleton has no
+    length or there is no observed point.
     """
-    from plantbench.metrics.surface import kdtree, nearest_distances
+    from plantbench.metrics.surface import threshold_distances
 
     obs = check_shape("observed points", observed, (-1, 3), "f")
     if not all(t > 0 for t in tolerances):
         from plantbench.errors import InputError
 
         raise InputError(f"skeleton_support: tolerances must be > 0, got {tolerances}")
-    w = sample_weights(skeleton, step, volume=False)
+    s = _samples(skeleton, step)
+    w = s.weights(volume=False)
     if not len(obs) or not w.sum() > 0:
         return None
-    pts, _ = sample_skeleton(skeleton, step)
-    d, _ = nearest_distances(obs, pts, tree=kdtree(obs))
+    d = threshold_distances(obs, s.points, tolerances, query_tree=s.tree)
     return [_weighted_share(w, d <= t) for t in tolerances]
 
 
