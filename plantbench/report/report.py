@@ -570,8 +570,8 @@ def timeline_figure(run_dir: str | os.PathLike, path: str | os.PathLike) -> Path
     busy = float((end - start).sum())
     ax.set(xlabel="minutes since the first job started", ylabel="worker slot", yticks=range(len(lanes)),
            title=f"{len(jobs)} jobs computed in {wall:.1f} min; busy {busy / max(wall, 1e-9):.2f} slots on average")
-    ax.legend(handles=[matplotlib.patches.Patch(color=colours[n], label=n) for n in names], ncol=min(len(names), 8),
-              fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.35 if len(lanes) < 3 else -0.2), frameon=False)
+    fig.legend(handles=[matplotlib.patches.Patch(color=colours[n], label=n) for n in names], ncol=min(len(names), 8),
+               fontsize=7, loc="outside lower center", frameon=False)
     ax.invert_yaxis()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -14,7 +14,8 @@ from .synth import cylinder
 
 
 def closest_on_segment(p, a, b):
-    t = np.clip((p - a) @ (b - a) / ((b - a) @ (b - a)), 0.0, 1.0)
+    length2 = (b - a) @ (b - a)
+    t = np.clip((p - a) @ (b - a) / length2, 0.0, 1.0) if length2 > 0 else 0.0
     return a + t * (b - a)
 
 
@@ -22,10 +23,11 @@ def closest_on_triangle(p, a, b, c):
     """One point, one triangle, without Ericson's region tests: the foot of the perpendicular on the triangle's plane
     when it falls inside the triangle, else the nearest of the closest points on the three edges."""
     n = np.cross(b - a, c - a)
-    foot = p - (p - a) @ n / (n @ n) * n
-    u, v = np.linalg.lstsq(np.stack([b - a, c - a], axis=1), foot - a, rcond=None)[0]
-    if u >= 0 and v >= 0 and u + v <= 1:
-        return foot
+    if n @ n > 0:  # a degenerate triangle is its edges
+        foot = p - (p - a) @ n / (n @ n) * n
+        u, v = np.linalg.lstsq(np.stack([b - a, c - a], axis=1), foot - a, rcond=None)[0]
+        if u >= 0 and v >= 0 and u + v <= 1:
+            return foot
     return min((closest_on_segment(p, s, e) for s, e in ((a, b), (b, c), (c, a))), key=lambda q: np.linalg.norm(p - q))
 
 
