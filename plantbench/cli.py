@@ -354,28 +354,50 @@ def variability(
     = Path("reports"),
     only: Annotated[Optional[str], typer.Option(  # noqa: UP045
         help="Comma-separated perturbations to run besides the reference (default: all this CPU can run).")] = None,
+    another_cpu: Annotated[bool, typer.Option(
+        "--another-cpu", help="Run only the reference configuration here and add it, named after this CPU, to the "
+                              "study in REPORTS/variability/study.csv; the tolerances are re-made from the grown study "
+                              "and the baseline (the first machine's reference run) stays.")] = False,
 ) -> None:
     """Run a suite under perturbations that carry no meaning (Dr.Jit target and vector width, +-1 grey level of
-    image noise, thread count), then write the gate's baseline (the reference run) and its tolerances."""
+    image noise, thread count), then write the gate's baseline (the reference run) and its tolerances.
+
+    With --another-cpu, a study made on one machine grows by the reference configuration run on this one: the gate
+    then allows what another CPU moves."""
     import time
 
     from plantbench.backend import host_cpu_name
     from plantbench.io.atomic import atomic_write
     from plantbench.report.gate import make_baseline, read_run_meta, write_baseline, write_tolerances
+    from dataclasses import replace
+
     from plantbench.report.variability import (
         PERTURBATIONS,
         available_perturbations,
+        extend_study,
         run_study,
         study_markdown,
+        study_perturbations,
         study_table,
         tolerances_from_study,
     )
+    from plantbench.report.variability import another_cpu as other_cpu
     from plantbench.suites import load_suite
 
     spec = load_suite(suite)
-    chosen = available_perturbations([n.strip() for n in only.split(",")] if only else None)
     console = _console()
-    skipped = [p for p in PERTURBATIONS if p not in chosen and (not only or p.name in only)]
+    folder = reports / "variability"
+    previous = None
+    if another_cpu:
+        if only:
+            raise InputError("--another-cpu runs the reference configuration only: leave out --only")
+        previous = _read_study(folder / "study.csv")
+        reference = available_perturbations(["reference"])[0]
+        chosen = [replace(reference, name=other_cpu(host_cpu_name()).name,
+                          description=other_cpu(host_cpu_name()).description)]
+    else:
+        chosen = available_perturbations([n.strip() for n in only.split(",")] if only else None)
+    skipped = [] if another_cpu else [p for p in PERTURBATIONS if p not in chosen and (not only or p.name in only)]
     for p in skipped:
         console.print(f"skipped {p.name}: this CPU lacks {p.requires}")
 
@@ -394,25 +416,51 @@ def variability(
 
         tables = run_study(spec, out, perturbations=chosen, on_run=on_run, progress=progress)
         bar.update(runs, completed=len(chosen))
-    study = study_table(tables)
+    study = study_table(tables) if previous is None else extend_study(previous, tables)
     tol = tolerances_from_study(study, spec.name)
-    folder = reports / "variability"
     folder.mkdir(parents=True, exist_ok=True)
     with atomic_write(folder / "study.csv", "w") as fh:
         study.to_csv(fh, index=False)
-    meta = read_run_meta(out / "reference" / spec.name)
-    header = (f"Made by `plantbench variability --suite {spec.name}` on {host_cpu_name()} "
-              f"(code {meta.get('git_sha')}, {time.perf_counter() - t0:.0f} s for {len(chosen)} runs). "
-              "study.csv holds every run's headline values; ../tolerances.json the tolerances; ../baseline.json "
-              "the reference run's values.")
+    meta = read_run_meta(out / chosen[0].name / spec.name)
+    made = (f"Made by `plantbench variability --suite {spec.name}` on {host_cpu_name()} "
+            f"(code {meta.get('git_sha')}, {time.perf_counter() - t0:.0f} s for {len(chosen)} runs).")
+    if previous is not None:  # the first machine's header stays; this run is added below it
+        lines = (folder / "README.md").read_text().splitlines() if (folder / "README.md").is_file() else []
+        end = next((i for i, line in enumerate(lines) if line.startswith("| run |")), len(lines))
+        old = "\n".join(line for line in lines[1:end] if not line.startswith(f"Run {chosen[0].name} ")).strip()
+        made = f"{old}\n\nRun {chosen[0].name} added by `plantbench variability --suite {spec.name} " \
+               f"--another-cpu` on {host_cpu_name()} (code {meta.get('git_sha')}, " \
+               f"{time.perf_counter() - t0:.0f} s)."
+    else:
+        made += (" study.csv holds every run's headline values; ../tolerances.json the tolerances; ../baseline.json "
+                 "the reference run's values.")
     with atomic_write(folder / "README.md", "w") as fh:
-        fh.write(study_markdown(study, tol, chosen, header=header))
+        fh.write(study_markdown(study, tol, study_perturbations(study), header=made))
     write_tolerances(reports / "tolerances.json", tol)
-    write_baseline(reports / "baseline.json", make_baseline(tables["reference"], spec.name,
-                                                            llvm_target=meta.get("llvm_target"),
-                                                            git_sha=meta.get("git_sha")))
-    console.print(f"{folder}/README.md, {reports}/tolerances.json ({len(tol.entries)} cells), "
-                  f"{reports}/baseline.json: {len(chosen)} runs in {time.perf_counter() - t0:.0f} s")
+    if previous is None:
+        write_baseline(reports / "baseline.json", make_baseline(tables["reference"], spec.name,
+                                                                llvm_target=meta.get("llvm_target"),
+                                                                git_sha=meta.get("git_sha")))
+    console.print(f"{folder}/README.md, {reports}/tolerances.json ({len(tol.entries)} cells)"
+                  + (f", {reports}/baseline.json" if previous is None else " (baseline kept)")
+                  + f": {len(chosen)} runs in {time.perf_counter() - t0:.0f} s")
+
+
+def _read_study(path: Path):
+    """A committed study table (study.csv), checked for its columns and a reference run."""
+    import pandas as pd
+
+    from plantbench.report.variability import STUDY_COLUMNS
+
+    if not path.is_file():
+        raise InputError("no study to add to: run `plantbench variability` on the first machine", path=path)
+    try:
+        study = pd.read_csv(path)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"unreadable study table: {exc}", path=path) from None
+    if list(study.columns) != STUDY_COLUMNS or "reference" not in set(study["perturbation"]):
+        raise InputError(f"not a study table (columns {STUDY_COLUMNS} and a 'reference' run)", path=path)
+    return study
 
 
 dataset_app = _group("dataset", "Frozen datasets: a suite's ground truth and captures with a sha256 manifest.")

@@ -23,7 +23,7 @@ import numpy as np
 from plantbench.report.gate import FLOORS, HEADLINE, ToleranceEntry, Tolerances, cell_values
 
 __all__ = ["Perturbation", "PERTURBATIONS", "available_perturbations", "study_table", "tolerances_from_study",
-           "run_study", "STUDY_COLUMNS"]
+           "run_study", "STUDY_COLUMNS", "another_cpu", "extend_study", "study_perturbations"]
 
 STUDY_COLUMNS = ["perturbation", "method", "case", "metric", "value"]
 
@@ -82,6 +82,38 @@ def available_perturbations(names: list[str] | None = None) -> list[Perturbation
             raise InputError(f"unknown perturbation(s) {unknown}; known: {sorted(known)}")
     chosen = [p for p in PERTURBATIONS if names is None or p.name in names or p.name == "reference"]
     return [p for p in chosen if not p.requires or host_has(p.requires)]
+
+
+_CPU_PREFIX = "cpu-"
+
+
+def another_cpu(cpu: str) -> Perturbation:
+    """The reference configuration run on another machine, named after its CPU model (``cpu``, e.g. 'AMD EPYC'):
+    what the pinned Dr.Jit target leaves to the CPU (other libraries' own instruction-set dispatch) moves the
+    numbers this far, so the gate must allow it."""
+    slug = "".join(c if c.isalnum() else "-" for c in cpu.lower()).strip("-")
+    slug = "-".join(part for part in slug.split("-") if part) or "unknown"
+    return Perturbation(_CPU_PREFIX + slug, f"the reference configuration on another CPU ({cpu})")
+
+
+def extend_study(previous, tables: dict[str, object]):
+    """``previous`` (a study table, e.g. the committed study.csv) with the runs of ``tables`` added; a run of the same
+    name replaces the old one. The previous reference stays the reference."""
+    import pandas as pd
+
+    new = study_table(tables)
+    kept = previous[~previous["perturbation"].isin(set(new["perturbation"]))]
+    return pd.concat([kept, new], ignore_index=True)[STUDY_COLUMNS]
+
+
+def study_perturbations(study) -> list[Perturbation]:
+    """The runs of a study table as :class:`Perturbation` records, in the order of :data:`PERTURBATIONS`, other
+    CPUs' runs last (their descriptions name the CPU as far as the run's name does)."""
+    names = list(dict.fromkeys(study["perturbation"]))
+    known = [p for p in PERTURBATIONS if p.name in names]
+    others = [Perturbation(n, f"the reference configuration on another CPU ({n[len(_CPU_PREFIX):]})")
+              for n in names if n not in {p.name for p in known}]
+    return known + others
 
 
 @contextlib.contextmanager

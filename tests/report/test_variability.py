@@ -22,7 +22,14 @@ from plantbench.report.gate import (
     make_baseline,
     tolerances_path,
 )
-from plantbench.report.variability import PERTURBATIONS, available_perturbations, tolerances_from_study
+from plantbench.report.variability import (
+    PERTURBATIONS,
+    another_cpu,
+    available_perturbations,
+    extend_study,
+    study_perturbations,
+    tolerances_from_study,
+)
 
 REPORTS = project_root() / "reports"
 
@@ -76,6 +83,24 @@ def test_perturbations_start_with_the_reference():
 
     with pytest.raises(InputError, match="unknown perturbation"):
         available_perturbations(["warp-speed"])
+
+
+def test_another_cpus_run_grows_the_study_and_its_tolerances():
+    # a study made on one machine; the same configuration on another CPU moves S_T by 0.2: the tolerance covers it,
+    # the reference (and so the baseline) stays the first machine's, and a second run of that CPU replaces the first
+    first = _study({("guo", "maple-1", "stava.S_T"): [0.50, 0.51, 0.49]})
+    other = another_cpu("AMD EPYC 9B45 (Zen 5)")
+    assert other.name == "cpu-amd-epyc-9b45-zen-5" and "AMD EPYC 9B45" in other.description
+    moved = pd.DataFrame([{"method": "guo", "case": "maple-1", "metric": "stava.S_T", "value": 0.70, "status": "ok"}])
+    grown = extend_study(first, {other.name: moved})
+    grown = grown[grown["case"] == "maple-1"]  # (the added run also has the suite's mean, cell_values' "mean" case)
+    assert len(grown) == 4 and set(grown["perturbation"]) == {"reference", "a", "b", other.name}
+    (e,) = tolerances_from_study(grown, "t").entries
+    assert e.tolerance >= 0.2 and e.max_change == pytest.approx(0.2)
+    again = extend_study(grown, {other.name: moved.assign(value=0.55)})
+    again = again[again["case"] == "maple-1"]
+    assert len(again) == 4 and again.loc[again["perturbation"] == other.name, "value"].tolist() == [0.55]
+    assert study_perturbations(again)[0].name == "reference" and study_perturbations(again)[-1].name == other.name
 
 
 # ------------------------------------------------------------------------------ the committed study and baseline
