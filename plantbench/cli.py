@@ -239,6 +239,53 @@ def report(
 
 
 @app.command()
+def compare(
+    run_a: Annotated[Path, typer.Argument(metavar="RUN_A", help="A run folder (e.g. the multiview suite's).")],
+    run_b: Annotated[Path, typer.Argument(metavar="RUN_B", help="A run of the same cases (e.g. multiview_oracle).")],
+    label_a: Annotated[str, typer.Option(help="What run A is, for the table.")] = "a",
+    label_b: Annotated[str, typer.Option(help="What run B is, for the table.")] = "b",
+    out: Annotated[Optional[Path], typer.Option(  # noqa: UP045
+        help="Also write the table here: .csv, or .md for a markdown table.")] = None,
+) -> None:
+    """Each method of two runs of the same cases, paired over the cases: means, B - A with its 95 % bootstrap
+    interval, and whether B is better, worse or within noise (e.g. the mvs cloud against the oracle cloud: how much
+    of a method's error is the cloud's)."""
+    from plantbench.io.atomic import atomic_write
+    from plantbench.report.gate import read_results
+    from plantbench.report.tables import compare_runs
+
+    if label_a == label_b:
+        raise InputError(f"--label-a and --label-b must differ (both {label_a!r})")
+    table = compare_runs(read_results(run_a), read_results(run_b), label_a=label_a, label_b=label_b)
+    if table.empty:
+        raise InputError(f"no method scored in both runs ({run_a}, {run_b})")
+    md = _compare_markdown(table, label_a, label_b)
+    if out is not None:
+        with atomic_write(out, "w") as fh:
+            if out.suffix == ".md":
+                fh.write(md)
+            else:
+                table.to_csv(fh, index=False)
+    if sys.stdout.isatty():
+        _console().print(md)
+    else:
+        typer.echo(md, nl=False)
+
+
+def _compare_markdown(table, label_a: str, label_b: str) -> str:
+    from plantbench.report.tables import format_value, metric_info
+
+    lines = [f"| method | metric | n | {label_a} | {label_b} | {label_b} - {label_a} [95 % CI] | verdict |",
+             "|---|---|---|---|---|---|---|"]
+    for r in table.itertuples():
+        info = metric_info(r.metric)
+        arrow = "" if info is None or info.higher_is_better is None else " ↑" if info.higher_is_better else " ↓"
+        lines.append(f"| {r.method} | {r.metric}{arrow} | {r.n} | {format_value(r.mean_a)} | {format_value(r.mean_b)} "
+                     f"| {r.diff:+.3f} [{r.lo:+.3f}, {r.hi:+.3f}] | {r.verdict} |")
+    return "\n".join(lines) + "\n"
+
+
+@app.command()
 def gate(
     run_dir: Annotated[Path, typer.Argument(metavar="RUN", help="A run folder (holding results.parquet).")],
     baseline: Annotated[Path, typer.Option(help="Baseline JSON (headline metric values per method and case).")] = Path(

@@ -57,3 +57,22 @@ def test_methods_lists_gt():
 def test_external_command_needs_out_placeholder(tmp_path):
     out = plantbench("reconstruct", str(tmp_path), "--method", "cmd:echo {capture}", "--out", str(tmp_path / "o"))
     assert out.returncode == 2 and "{out}" in out.stderr
+
+
+def test_compare_two_runs_in_a_pipe(tmp_path):
+    import pandas as pd
+
+    for name, shift in (("a", 0.0), ("b", 0.1)):
+        (tmp_path / name).mkdir()
+        pd.DataFrame([{"case": f"c{i}", "species": "s", "family": "f", "seed": 1, "method": "guo", "sweep": None,
+                       "metric": "skeleton.vf1@1%", "value": 0.3 + 0.01 * i + shift, "status": "ok"}
+                      for i in range(5)]).to_csv(tmp_path / name / "results.csv", index=False)
+    out = plantbench("compare", str(tmp_path / "a"), str(tmp_path / "b"), "--label-a", "mvs", "--label-b", "oracle",
+                     "--out", str(tmp_path / "cmp.csv"))
+    assert out.returncode == 0, out.stderr
+    row = next(line for line in out.stdout.splitlines() if "skeleton.vf1@1%" in line)
+    assert "| guo |" in row and "+0.100 [+0.100, +0.100]" in row and "oracle better" in row
+    assert "\x1b[" not in out.stdout  # plain text into a pipe
+    assert pd.read_csv(tmp_path / "cmp.csv")["verdict"].tolist() == ["oracle better"]
+    same = plantbench("compare", str(tmp_path / "a"), str(tmp_path / "b"), "--label-a", "x", "--label-b", "x")
+    assert same.returncode == 2 and "must differ" in same.stderr

@@ -10,7 +10,7 @@ import numpy as np
 from plantbench.metrics.info import HEADLINE_FIDELITY, HEADLINE_GT_FREE
 
 __all__ = ["bootstrap_ci", "aggregate", "summary_table", "KEY_METRICS", "metric_info", "paired_differences",
-           "format_value", "HEADLINE"]
+           "format_value", "HEADLINE", "compare_runs"]
 
 HEADLINE = HEADLINE_FIDELITY + HEADLINE_GT_FREE
 """The calibrated fidelity metrics (:data:`plantbench.metrics.info.HEADLINE_FIDELITY`) and the GT-free skeleton
@@ -142,6 +142,37 @@ def paired_differences(table, metrics: tuple[str, ...], pairs: list[tuple[str, s
             rows.append({"metric": metric, "a": a, "b": b, "n": int(d.size),
                          "diff": float(d.mean()) if d.size else float("nan"), "lo": lo, "hi": hi, "verdict": verdict})
     return pd.DataFrame(rows, columns=["metric", "a", "b", "n", "diff", "lo", "hi", "verdict"])
+
+
+def compare_runs(table_a, table_b, *, label_a: str = "a", label_b: str = "b", metrics: tuple[str, ...] = KEY_METRICS,
+                 n_boot: int = 5000, seed: int = 0):
+    """Each method of two runs of the same cases (e.g. on the mvs cloud and on the oracle cloud, or with and without
+    a hint), paired over the cases both scored: the two means, and run b minus run a with its bootstrap interval and
+    verdict (:func:`paired_differences`; 'b better' / 'b worse' in the metric's direction). Methods in only one run
+    are left out.
+
+    Returns a DataFrame: method, metric, n, mean_a, mean_b, diff (b - a), lo, hi, verdict.
+    """
+    import pandas as pd
+
+    cols = ["method", "metric", "n", "mean_a", "mean_b", "diff", "lo", "hi", "verdict"]
+    common = sorted(set(table_a["method"]) & set(table_b["method"]))
+    rows = []
+    for method in common:
+        a = table_a[table_a["method"] == method].assign(method=label_a)
+        b = table_b[table_b["method"] == method].assign(method=label_b)
+        both = pd.concat([a, b], ignore_index=True)
+        diff = paired_differences(both, metrics, [(label_b, label_a)], n_boot=n_boot, seed=seed)
+        means = both[(both["status"] == "ok")].pivot_table(index=["metric", "case"], columns="method", values="value",
+                                                          aggfunc="first")
+        for r in diff.itertuples():
+            w = means.loc[r.metric].dropna()  # the cases both scored, as the difference uses
+            verdict = r.verdict.replace(f"{label_b} beats {label_a}", f"{label_b} better").replace(
+                f"{label_b} below {label_a}", f"{label_b} worse")
+            rows.append({"method": method, "metric": r.metric, "n": r.n, "mean_a": float(w[label_a].mean()),
+                         "mean_b": float(w[label_b].mean()), "diff": r.diff, "lo": r.lo, "hi": r.hi,
+                         "verdict": verdict})
+    return pd.DataFrame(rows, columns=cols)
 
 
 def _fmt(mean: float, lo: float, hi: float) -> str:

@@ -63,11 +63,19 @@ def git_sha() -> str | None:
 
 
 def oracle_methods(suite: Suite, methods: list[str]) -> list[str]:
-    """The methods of a run that read ground truth with the suite's options (marked in every table)."""
+    """The methods of a run that read ground truth with the suite's options (marked in every table): oracles
+    themselves, and the 'points' methods of a views suite whose mvs stage is one (its oracle depth makes their
+    cloud)."""
     from plantbench.methods.api import method_from_spec
     from plantbench.methods.inputs import is_oracle
 
-    return [m for m in methods if is_oracle(method_from_spec(m), suite.method_options.get(m, {}))]
+    cloud_is_oracle = suite.source != "scan" and is_oracle(method_from_spec("mvs"), suite.method_options.get("mvs", {}))
+    out = []
+    for m in methods:
+        method = method_from_spec(m)
+        if is_oracle(method, suite.method_options.get(m, {})) or (cloud_is_oracle and method.inputs == "points"):
+            out.append(m)
+    return out
 
 
 def run_metadata(suite: Suite, methods: list[str]) -> dict:

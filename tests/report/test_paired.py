@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from plantbench.report.report import _BEST_MARK, comparison_table, headline_table, render_table, wide_table
-from plantbench.report.tables import HEADLINE, format_value, paired_differences
+from plantbench.report.tables import HEADLINE, compare_runs, format_value, paired_differences
 
 
 def _table(values: dict[str, dict[str, list[float]]]) -> pd.DataFrame:
@@ -73,3 +73,22 @@ def test_tables_mark_best_and_lead_with_headline():
     assert set(marked["species"]) == {"s0", "s1"}  # best within each species
     comp, raw = comparison_table(t, ("skeleton.vf1@1%",))
     assert list(raw[["a", "b"]].itertuples(index=False, name=None)) == [("a", "b")]  # no prior: pairs only
+
+
+def test_compare_runs_pairs_each_method_across_two_runs():
+    # run b: guo's skeleton F1 up by 0.1 on every case (better), D up by 1 cm (worse: lower is better); xu only in
+    # run a (left out); the means are those of the cases both runs scored (c4 failed in b)
+    rng = np.random.default_rng(1)
+    base = rng.uniform(0.2, 0.6, 6)
+    a = _table({"guo": {"skeleton.vf1@1%": list(base), "mesh_to_surface.D_cm": list(4 + base)},
+                "xu": {"skeleton.vf1@1%": list(base)}})
+    b = _table({"guo": {"skeleton.vf1@1%": list(base + 0.1), "mesh_to_surface.D_cm": list(5 + base)}})
+    b.loc[(b["case"] == "c4"), "status"] = "failed"
+    t = compare_runs(a, b, label_a="mvs", label_b="oracle", metrics=("skeleton.vf1@1%", "mesh_to_surface.D_cm"))
+    assert set(t["method"]) == {"guo"}
+    row = t.set_index("metric").loc["skeleton.vf1@1%"]
+    keep = np.arange(6) != 4
+    assert row["n"] == 5 and row["diff"] == pytest.approx(0.1)
+    assert row["mean_a"] == pytest.approx(base[keep].mean()) and row["mean_b"] == pytest.approx(base[keep].mean() + 0.1)
+    assert row["verdict"] == "oracle better"
+    assert t.set_index("metric").loc["mesh_to_surface.D_cm", "verdict"] == "oracle worse"

@@ -178,3 +178,15 @@ def test_reference_methods_import_nothing_of_the_generator():
                 continue
             bad += [f"{f.name}: {n}" for n in names if n.startswith(("plantbench.generate", "plantbench.species"))]
     assert not bad
+
+
+def test_methods_on_an_oracle_cloud_are_marked_oracles():
+    # the multiview_oracle suite's mvs stage reads the exact depth: guo, livny and xu reconstruct from ground truth
+    # and every table must say so; on the estimated cloud only gt and the prior are oracles; a scan has no mvs stage
+    from plantbench.runner.run import oracle_methods
+    from plantbench.suites import load_suite
+
+    for name, expected in (("multiview", {"gt", "prior"}), ("multiview_oracle", {"prior", "guo", "livny", "xu"}),
+                           ("scan", {"gt", "prior"})):
+        s = load_suite(name)
+        assert set(oracle_methods(s, list(s.methods))) == expected, name
