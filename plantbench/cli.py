@@ -412,12 +412,11 @@ def variability(
     With --another-cpu, a study made on one machine grows by the reference configuration run on this one: the gate
     then allows what another CPU moves."""
     import time
+    from dataclasses import replace
 
     from plantbench.backend import host_cpu_name
     from plantbench.io.atomic import atomic_write
     from plantbench.report.gate import make_baseline, read_run_meta, write_baseline, write_tolerances
-    from dataclasses import replace
-
     from plantbench.report.variability import (
         PERTURBATIONS,
         available_perturbations,
@@ -439,9 +438,8 @@ def variability(
         if only:
             raise InputError("--another-cpu runs the reference configuration only: leave out --only")
         previous = _read_study(folder / "study.csv")
-        reference = available_perturbations(["reference"])[0]
-        chosen = [replace(reference, name=other_cpu(host_cpu_name()).name,
-                          description=other_cpu(host_cpu_name()).description)]
+        here = other_cpu(host_cpu_name())
+        chosen = [replace(available_perturbations(["reference"])[0], name=here.name, description=here.description)]
     else:
         chosen = available_perturbations([n.strip() for n in only.split(",")] if only else None)
     skipped = [] if another_cpu else [p for p in PERTURBATIONS if p not in chosen and (not only or p.name in only)]

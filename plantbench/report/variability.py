@@ -89,8 +89,9 @@ _CPU_PREFIX = "cpu-"
 
 def another_cpu(cpu: str) -> Perturbation:
     """The reference configuration run on another machine, named after its CPU model (``cpu``, e.g. 'AMD EPYC'):
-    what the pinned Dr.Jit target leaves to the CPU (other libraries' own instruction-set dispatch) moves the
-    numbers this far, so the gate must allow it."""
+    what the pinned Dr.Jit target leaves to the CPU moves the numbers this far (Embree's own choice of kernels, the
+    vendor-specific approximate reciprocals of fast-math kernels: docs/tuning/determinism.md), so the gate must allow
+    it."""
     slug = "".join(c if c.isalnum() else "-" for c in cpu.lower()).strip("-")
     slug = "-".join(part for part in slug.split("-") if part) or "unknown"
     return Perturbation(_CPU_PREFIX + slug, f"the reference configuration on another CPU ({cpu})")
