@@ -105,6 +105,31 @@ def test_skeleton_prf_matches_the_full_search(rng, height):
     assert skeleton_prf(gt, pred, step=0.004, height=height) == _prf_full_search(gt, pred, 0.004, height)
 
 
+@pytest.mark.parametrize("height", [5.0, 10.0, 20.0])
+@pytest.mark.parametrize("every", [4, 16])
+def test_skeleton_prf_settled_from_anchors_matches_the_full_search(rng, monkeypatch, height, every):
+    """The anchors' path of skeleton_prf's precision (on from _SETTLE_MIN samples, forced here): a thick trunk, a
+    prediction near it and one far away, and a third along the trunk's axis inside it (radius tests that pass
+    without a height test), settled and searched samples and far anchors alike, the same values to the last bit."""
+    import plantbench.metrics.skeleton as sk
+
+    gt = random_tree(rng, 10, seg_len=0.05, trunk_segments=10)
+    gt = Skeleton(gt.positions, np.where(np.arange(len(gt)) < 11, 0.06, gt.radii), gt.parents)
+    near = random_tree(rng, 10, seg_len=0.05, trunk_segments=10)
+    parts = [near.positions + [0.05, 0.0, 0.0], near.positions + [2.0, 0.0, 0.0], gt.positions[:11] + [0.03, 0, 0]]
+    offsets = np.cumsum([0, len(near), len(near)])
+    parents = [near.parents, near.parents, np.arange(-1, 10)]
+    pred = Skeleton(np.concatenate(parts), np.concatenate([near.radii, near.radii, np.full(11, 0.01)]),
+                    np.concatenate([np.where(q >= 0, q + o, -1) for q, o in zip(parents, offsets)]))
+    expected = _prf_full_search(gt, pred, 0.002, height)
+    monkeypatch.setattr(sk, "_SETTLE_MIN", 1)
+    monkeypatch.setattr(sk, "_SETTLE_EVERY", every)
+    settled = sk._settle(sk.skeleton_samples(gt, 0.002), sk.skeleton_samples(pred, 0.002),
+                         np.array([f * height for f in sk.HEIGHT_FRACTIONS]), 2.0)[0]
+    assert 0 < settled.sum() < len(settled)  # both paths taken
+    assert skeleton_prf(gt, pred, step=0.002, height=height) == expected
+
+
 def test_shared_skeleton_samples_give_the_same_values(rng):
     gt, pred = random_tree(rng, 6), random_tree(rng, 5)
     g, p = skeleton_samples(gt, 0.003), skeleton_samples(pred, 0.003)
