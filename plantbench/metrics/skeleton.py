@@ -177,9 +177,9 @@ def _pred_to_gt(g: SkeletonSamples, p: SkeletonSamples, taus: list[float], facto
     ``taus`` (the height-relative tolerances) come out as with the distance to the nearest ground-truth sample and
     that sample's radius.
 
-    Exact (distance and radius) wherever a radius test can pass, and up to the largest tau; beyond it (inf, 0), and
-    exact near a thick ground-truth sample (factor r > the largest tau), where a radius test can still pass. The
-    search stops at the largest tau: a far query costs the most, and most far ones cannot pass.
+    A searched sample's answer is exact up to the largest tau; beyond it (inf, 0), and exact near a thick
+    ground-truth sample (factor r > the largest tau), where a radius test can still pass. The search stops at the
+    largest tau: a far query costs the most, and most far ones cannot pass.
 
     For many samples (:data:`_SETTLE_MIN`) most are settled without a search of their own, as
     :func:`~plantbench.metrics.surface.threshold_distances` settles its queries: consecutive samples lie along an
@@ -187,7 +187,8 @@ def _pred_to_gt(g: SkeletonSamples, p: SkeletonSamples, taus: list[float], facto
     anchor a (at most ``_SETTLE_GAP``) lies at a distance within ``gap`` of a's; it is settled when no tau falls in
     that range (d = a's distance is on the same side of every tau) and no ground-truth sample thick enough to pass a
     radius test (radius > (d_a - gap) / factor) lies within d_a + gap of it, checked from the anchor with twice the
-    gap (then d_q >= factor r_nearest: every radius test fails, and r = 0 says so).
+    gap (then d_q >= factor r_nearest: every radius test fails, and r = 0 says so). A settled sample's d is its
+    anchor's distance, a stand-in on the same side of every tau.
     """
     from plantbench.metrics.surface import _WITHIN_MARGIN, nearest_distances
 
