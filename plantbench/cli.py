@@ -266,10 +266,7 @@ def compare(
                 fh.write(md)
             else:
                 table.to_csv(fh, index=False)
-    if sys.stdout.isatty():
-        _console().print(md)
-    else:
-        typer.echo(md, nl=False)
+    typer.echo(md, nl=False)  # markdown reads the same on a terminal and pastes into a report
 
 
 def _compare_markdown(table, label_a: str, label_b: str) -> str:

@@ -237,9 +237,6 @@ def _settle(g: SkeletonSamples, p: SkeletonSamples, taus: np.ndarray, factor: fl
     Returns settled (n,) bool, the settled samples' stand-in distances, the anchors' indices and their distances and
     nearest ground-truth samples (exact up to the largest tau plus the gap bound, else inf and len(g.points)).
     """
-    from scipy.spatial import cKDTree
-
-    from plantbench.backend import kdtree_workers
     from plantbench.metrics.surface import _WITHIN_MARGIN, nearest_distances
 
     n, gap_max = len(p.points), _SETTLE_GAP
@@ -276,9 +273,7 @@ def _settle(g: SkeletonSamples, p: SkeletonSamples, taus: np.ndarray, factor: fl
         if not thick.any():
             clear[sel] = True
             continue
-        tree = cKDTree(g.points[thick], balanced_tree=False, compact_nodes=False)
-        near = tree.query(p.points[anchors[sel]], k=1, distance_upper_bound=float(reach[sel].max()) * 1.000001,
-                          workers=kdtree_workers())[0]
+        near = nearest_distances(g.points[thick], p.points[anchors[sel]], within=float(reach[sel].max()))[0]
         clear[sel] = near > reach[sel]
     settled &= clear[np.searchsorted(anchors, anchor)]
     return settled, mine[settled], anchors, np.where(d_a <= bound, d_a, np.inf), i_a

@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import re
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -92,8 +93,7 @@ def another_cpu(cpu: str) -> Perturbation:
     what the pinned Dr.Jit target leaves to the CPU moves the numbers this far (Embree's own choice of kernels, the
     vendor-specific approximate reciprocals of fast-math kernels: docs/tuning/determinism.md), so the gate must allow
     it."""
-    slug = "".join(c if c.isalnum() else "-" for c in cpu.lower()).strip("-")
-    slug = "-".join(part for part in slug.split("-") if part) or "unknown"
+    slug = re.sub(r"[^a-z0-9]+", "-", cpu.lower()).strip("-") or "unknown"
     return Perturbation(_CPU_PREFIX + slug, f"the reference configuration on another CPU ({cpu})")
 
 
