@@ -125,13 +125,18 @@ def capture(
                           "stations": stations, "scan_spacing": scan_spacing,
                           "registration_error": registration_error, "range_noise_per_m": range_noise_per_m})
     folder = capture_case(case, options, seed=seed)
+    import json
+
     scanned = ""
     if scan:
-        import json
-
         doc = json.loads((Path(case) / "scan" / "stations.json").read_text())
         scanned = (f"; scan from {stations} station(s), {doc['points']} points at a median spacing of "
                    f"{100 * doc['median_spacing']:.2f} cm")
+    leaves = json.loads((folder / "capture.json").read_text()).get("leaf_pixels") or {}
+    if leaves.get("median_px") is not None:
+        scanned += (f"; leaves cover {leaves['median_px']:.0f} px per view where visible (median), "
+                    f"{leaves['resolved_2_views']} of {leaves['leaves']} cover >= {leaves['resolved_px']} px "
+                    "in >= 2 views")
     typer.echo(f"{folder}: {views} views at {w}x{h}, {spp} spp{scanned}")
 
 

@@ -41,10 +41,34 @@ from plantbench.io.ply import write_points
 from plantbench.plant import Plant
 from plantbench.seeding import derive_seed, rng
 
-__all__ = ["CAPTURE_FORMAT", "capture_case", "sample_surface", "is_complete"]
+__all__ = ["CAPTURE_FORMAT", "LEAF_RESOLVED_PX", "capture_case", "leaf_pixels", "sample_surface", "is_complete"]
 
 CAPTURE_FORMAT = "plantbench.capture/1"
 _MAX_LEAF_ID = 65535 - 2  # instance maps are uint16 with leaves at 2 + id
+
+LEAF_RESOLVED_PX = 200
+"""A leaf is resolved in a view where it covers at least this many pixels (the leaves suite's criterion)."""
+
+
+def leaf_pixels(instances: list[np.ndarray], n_leaves: int, *, resolved_px: int = LEAF_RESOLVED_PX) -> dict:
+    """How large the leaves appear: the pixels each leaf covers in each view where it is visible (instance maps,
+    leaves at 2 + id), summarised.
+
+    Keys: ``leaves``; ``visible`` (leaves seen in at least one view) and ``resolved_2_views`` (leaves covering at
+    least ``resolved_px`` pixels in at least two views); ``median_px``, ``p25_px``, ``p75_px`` (over the (leaf, view)
+    pairs where the leaf is visible; None when none is); ``resolved_px``.
+    """
+    per_view = np.zeros((len(instances), n_leaves), np.int64)
+    for v, inst in enumerate(instances):
+        ids = inst[inst >= 2].astype(np.int64) - 2
+        per_view[v] = np.bincount(ids[ids < n_leaves], minlength=n_leaves)
+    seen = per_view[per_view > 0]
+    q = np.percentile(seen, [25, 50, 75]) if len(seen) else [None] * 3
+    return {"leaves": int(n_leaves), "visible": int(np.count_nonzero((per_view > 0).any(0))),
+            "resolved_2_views": int(np.count_nonzero((per_view >= resolved_px).sum(0) >= 2)),
+            "median_px": None if q[1] is None else float(q[1]),
+            "p25_px": None if q[0] is None else float(q[0]), "p75_px": None if q[2] is None else float(q[2]),
+            "resolved_px": int(resolved_px)}
 
 
 def sample_surface(plant: Plant, n: int, rng_: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -142,7 +166,7 @@ def capture_case(case_dir: str | os.PathLike, settings: Any = None, *, seed: int
             t0 = time.perf_counter()
             scan_summary = _write_scan(tmp_scan, plant, options, seed, caster, plant_json.species)
             timings["scan"] = time.perf_counter() - t0
-        _write_views(tmp_views, plant, cameras, scene, gt, caster, options, seed, mi, timings)
+        leaves = _write_views(tmp_views, plant, cameras, scene, gt, caster, options, seed, mi, timings)
         doc = {
             "format": CAPTURE_FORMAT,
             "settings": options.model_dump(mode="json"),
@@ -154,6 +178,7 @@ def capture_case(case_dir: str | os.PathLike, settings: Any = None, *, seed: int
             "versions": _versions(),
             "images": [f"{i:04d}.png" for i in range(len(cameras))],
             "scan": scan_summary,
+            "leaf_pixels": leaves,
             "conventions": {
                 "depth": "float32 z-depth along the optical axis, metres, one ray through each pixel centre; inf where "
                          "the ray hits nothing (sky); the ground plane has finite depth and instance 0",
@@ -227,7 +252,8 @@ def _write_scan(folder: Path, plant: Plant, options: CaptureOptions, seed: int, 
 
 
 def _write_views(folder: Path, plant: Plant, cameras: list[Camera], scene, gt, caster: RayCaster,
-                 options: CaptureOptions, seed: int, mi, timings: dict[str, float]) -> None:
+                 options: CaptureOptions, seed: int, mi, timings: dict[str, float]) -> dict:
+    """Writes the views; returns :func:`leaf_pixels` of their instance maps."""
     for sub in ("images", "depth", "instance", "foliage") + (("normal",) if options.normals else ()):
         (folder / sub).mkdir()
     names = [f"{i:04d}.png" for i in range(len(cameras))]
@@ -259,3 +285,4 @@ def _write_views(folder: Path, plant: Plant, cameras: list[Camera], scene, gt, c
     tracks: Tracks = visible_tracks(pts, inst, cameras, depths, instances, images)
     write_colmap_text(folder / "colmap", cameras, names, tracks)
     write_transforms(folder / "transforms.json", cameras, names)
+    return leaf_pixels(instances, len(plant.leaves))

@@ -39,9 +39,9 @@ VIEW_ENTRIES = ("images", "cameras.json", "transforms.json")
 GROUND_TRUTH = ("plant", "views/depth", "views/instance", "views/foliage", "views/normal")
 """Ground truth inside a capture: only oracles read it (and the scan's label, leaf_id columns)."""
 
-_CAPTURE_GROUND_TRUTH_KEYS = ("plant", "scan")
+_CAPTURE_GROUND_TRUTH_KEYS = ("plant", "scan", "leaf_pixels")
 """Keys of views/capture.json that describe the ground truth (the plant's species, seed and height; the scan's
-label counts): dropped from a method's copy."""
+label counts; the leaves' pixel counts): dropped from a method's copy."""
 
 
 def is_oracle(method, options: dict | None = None) -> bool:

@@ -222,8 +222,14 @@ def _leaf_metrics(values: dict, reasons: dict, plant, leaves, no_plant: str) -> 
     det = lv.leaf_detection(gt_c, pred_c, radius=radius)
     det.pop("matched")
     spacing = lv.median_spacing(gt_c) if len(gt_c) > 1 else (plant.leaves[0].length if len(gt_c) else 1.0)
-    strict = lv.leaf_detection(gt_c, pred_c, radius=lv.SPACING_FRACTION * spacing)
+    strict_radius = lv.SPACING_FRACTION * spacing
+    strict = lv.leaf_detection(gt_c, pred_c, radius=strict_radius)
     det.update({f"strict_{k}": strict[k] for k in ("precision", "recall", "f1")})
+    pairs = lv.leaf_matches(gt_c, pred_c, radius=strict_radius)
+    shape, angle = lv.leaf_shape_errors(plant.leaves, leaves, pairs)
+    det.update({"strict_matched": float(len(pairs)),
+                "shape_error": float(np.median(shape)) if len(pairs) else None,
+                "normal_error_deg": float(np.median(angle)) if len(pairs) else None})
     _set(values, reasons, "leaves", {**counts, **det}, "no ground-truth leaf")
 
 

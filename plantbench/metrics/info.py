@@ -78,6 +78,11 @@ _add("leaves.f1", "", True, "leaf detection F1")
 for _k in ("precision", "recall", "f1"):
     _add(f"leaves.strict_{_k}", "", True, f"strict leaf detection {_k} (centroids within half the median GT leaf "
                                            "spacing)")
+_add("leaves.strict_matched", "", None, "leaves matched by the strict detection")
+_add("leaves.shape_error", "", False, "strictly matched leaves: median of the symmetric mean surface distance between "
+                                      "fitted and true blade / true blade length")
+_add("leaves.normal_error_deg", "deg", False, "strictly matched leaves: median angle between fitted and true blade "
+                                              "normals (unsigned, 0-90)")
 
 _add("points.count", "", None, "number of points in the method's points.ply (Guo et al. 2018, |P|)")
 for _src, _what in (("points", "the method's points.ply"), ("surface", "an area-uniform sample of mesh.ply")):

@@ -17,6 +17,11 @@
   half their length, so a leaf of the species' crown put anywhere lands near one (the no-data prior scores F1
   0.15 on the multiview suite, above every method). Against the spacing, a leaf must be where that leaf is.
   One ground-truth leaf: its spacing is its own length.
+* Shape of matched leaves (:func:`leaf_shape_errors`, on the strict matching's pairs): the shape error is the
+  symmetric mean surface distance between the fitted and the true blade, over the true blade's length (each blade
+  tessellated from its Bezier parameters; the mean over one blade's area of the exact point-to-triangle distance to
+  the other, the two directions averaged); the orientation error is the angle between the blade normals (the leaf
+  frames' +z), unsigned (0-90 degrees: a blade seen as a plane has no upper side).
 """
 
 from __future__ import annotations
@@ -24,9 +29,11 @@ from __future__ import annotations
 import numpy as np
 
 from plantbench.errors import InputError
-from plantbench.plant import check_shape
+from plantbench.geometry.leaf import BezierLeaf, tessellate_placed
+from plantbench.plant import Leaf, TriMesh, check_shape
 
-__all__ = ["leaf_count_metrics", "leaf_detection", "median_spacing", "SPACING_FRACTION"]
+__all__ = ["leaf_count_metrics", "leaf_detection", "leaf_matches", "leaf_shape_errors", "median_spacing",
+           "SPACING_FRACTION"]
 
 SPACING_FRACTION = 0.5
 """Strict leaf detection: match radius as a fraction of the median ground-truth leaf spacing."""
@@ -46,10 +53,11 @@ def leaf_count_metrics(n_gt: int, n_pred: int) -> dict[str, float | None]:
             "rel_error": rel, "accuracy": acc}
 
 
-def leaf_detection(gt_centroids: np.ndarray, pred_centroids: np.ndarray, *, radius: float) -> dict[str, float]:
-    """Precision, recall, F1 and number of matches of predicted leaf centroids.
+def leaf_matches(gt_centroids: np.ndarray, pred_centroids: np.ndarray, *, radius: float) -> np.ndarray:
+    """The pairs (i ground truth, j prediction) of a maximum one-to-one matching of centroids within ``radius``.
 
     gt_centroids : (m, 3) float; pred_centroids : (n, 3) float; radius : match distance in metres (> 0)
+    returns : (k, 2) int, sorted by ground-truth index
     """
     from scipy.sparse import csr_array
     from scipy.sparse.csgraph import maximum_bipartite_matching
@@ -60,17 +68,71 @@ def leaf_detection(gt_centroids: np.ndarray, pred_centroids: np.ndarray, *, radi
     p = check_shape("predicted leaf centroids", pred_centroids, (-1, 3), "f")
     if not radius > 0:
         raise InputError(f"leaf_detection: radius must be > 0, got {radius}")
-    matched = 0
-    if len(g) and len(p):
-        pairs = kdtree(g).sparse_distance_matrix(kdtree(p), radius, output_type="ndarray")  # distance <= radius
-        graph = csr_array((np.ones(len(pairs), np.int8), (pairs["i"], pairs["j"])), shape=(len(g), len(p)))
-        matched = int(np.count_nonzero(maximum_bipartite_matching(graph, perm_type="column") >= 0))
-    if not len(g) and not len(p):
+    if not len(g) or not len(p):
+        return np.zeros((0, 2), np.int64)
+    pairs = kdtree(g).sparse_distance_matrix(kdtree(p), radius, output_type="ndarray")  # distance <= radius
+    graph = csr_array((np.ones(len(pairs), np.int8), (pairs["i"], pairs["j"])), shape=(len(g), len(p)))
+    match = maximum_bipartite_matching(graph, perm_type="column")  # per ground-truth leaf: its prediction or -1
+    i = np.flatnonzero(match >= 0)
+    return np.stack([i, match[i]], 1).astype(np.int64)
+
+
+def leaf_detection(gt_centroids: np.ndarray, pred_centroids: np.ndarray, *, radius: float) -> dict[str, float]:
+    """Precision, recall, F1 and number of matches of predicted leaf centroids (:func:`leaf_matches`).
+
+    gt_centroids : (m, 3) float; pred_centroids : (n, 3) float; radius : match distance in metres (> 0)
+    """
+    n_g, n_p = len(gt_centroids), len(pred_centroids)
+    matched = len(leaf_matches(gt_centroids, pred_centroids, radius=radius))
+    if not n_g and not n_p:
         return {"precision": 1.0, "recall": 1.0, "f1": 1.0, "matched": 0.0}
-    prec = matched / len(p) if len(p) else 0.0
-    rec = matched / len(g) if len(g) else 0.0
+    prec = matched / n_p if n_p else 0.0
+    rec = matched / n_g if n_g else 0.0
     f1 = 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0
     return {"precision": prec, "recall": rec, "f1": f1, "matched": float(matched)}
+
+
+SHAPE_RESOLUTION = (8, 16)
+"""Tessellation of each blade for :func:`leaf_shape_errors` (segments across each half, along the blade)."""
+
+
+def _blade(leaf: Leaf) -> TriMesh:
+    """The leaf's blade in world coordinates, tessellated from its Bezier parameters."""
+    omega = BezierLeaf(**leaf.params).vector()
+    t = np.asarray(leaf.transform, np.float64)
+    verts, faces = tessellate_placed(omega[None], np.array([leaf.length]), t[None, :3, :3], t[None, :3, 3],
+                                     SHAPE_RESOLUTION)
+    return TriMesh(verts[0], faces)
+
+
+def _mean_distance(source: TriMesh, target: TriMesh) -> float:
+    """Area-weighted mean over ``source``'s triangles of the exact distance from each triangle's centroid to
+    ``target``."""
+    from plantbench.metrics.surface import point_to_mesh_distances
+
+    area = source.face_areas()
+    centroid = source.vertices[source.faces].mean(axis=1)
+    keep = area > 0
+    return float(np.average(point_to_mesh_distances(target, centroid[keep]), weights=area[keep]))
+
+
+def leaf_shape_errors(gt: list[Leaf], pred: list[Leaf], pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per matched pair (i, j) of ``pairs`` (:func:`leaf_matches`): the shape error (symmetric mean surface distance
+    between blade j of ``pred`` and blade i of ``gt``, over gt[i].length) and the unsigned angle between their blade
+    normals in degrees (0-90).
+
+    returns : shape_error (k,) float, normal_angle_deg (k,) float
+    """
+    pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
+    shape = np.empty(len(pairs))
+    angle = np.empty(len(pairs))
+    for k, (i, j) in enumerate(pairs):
+        a, b = _blade(gt[i]), _blade(pred[j])
+        shape[k] = 0.5 * (_mean_distance(a, b) + _mean_distance(b, a)) / gt[i].length
+        na, nb = (np.asarray(leaf.transform, np.float64)[:3, 2] for leaf in (gt[i], pred[j]))
+        cos = abs(float(na @ nb)) / (np.linalg.norm(na) * np.linalg.norm(nb))
+        angle[k] = np.degrees(np.arccos(min(1.0, cos)))
+    return shape, angle
 
 
 def median_spacing(centroids: np.ndarray) -> float | None:

@@ -69,12 +69,15 @@ class Leaves:
     """Leaf instances from a view capture (Chaurasia and Beardsley 2017): writes ``leaves.json``, ``points.ply`` (points
     on the fitted leaf surfaces, with ``leaf_id``) and ``leaves_stats.json`` (skips per reason, timings).
 
+    A ``points`` method: in a suite it receives the mvs stage's output (its cloud, ``views/`` and the per-view depth
+    maps it estimated, ``depth/``), so the depth is estimated once per case for every method that reads it.
+
     Options: ``depth`` (see :func:`leaves_from_capture`: ``"mvs"``, the default, ``"oracle"`` or a folder of
     per-view maps) and any :class:`LeafParams` field.
     """
 
     name = "leaves"
-    inputs = "views"
+    inputs = "points"
     oracle_when = {"depth": "oracle"}
     """``depth="oracle"`` segments on the exact depth maps: an oracle run."""
 

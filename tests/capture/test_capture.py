@@ -35,6 +35,18 @@ def test_capture_writes_the_contract(captured):
     assert doc["mitsuba_variant"] in ("llvm_ad_rgb", "scalar_rgb")
     assert is_complete(case)
     assert not [p for p in case.iterdir() if p.name.startswith(".")]  # no temporary folders left
+    # leaf sizes: counted again here from the written instance maps, pixel by pixel
+    n_leaves = doc["leaf_pixels"]["leaves"]
+    counts = {}
+    for i in range(n):
+        for value in np.array(Image.open(v / "instance" / f"{i:04d}.png")).ravel().tolist():
+            if value >= 2:
+                counts[(value - 2, i)] = counts.get((value - 2, i), 0) + 1
+    assert counts and doc["leaf_pixels"]["median_px"] == float(np.median(list(counts.values())))
+    assert doc["leaf_pixels"]["visible"] == len({leaf for leaf, _ in counts})
+    resolved = [leaf for leaf in range(n_leaves)
+                if sum(counts.get((leaf, i), 0) >= doc["leaf_pixels"]["resolved_px"] for i in range(n)) >= 2]
+    assert doc["leaf_pixels"]["resolved_2_views"] == len(resolved)
 
 
 def test_settings_accept_suite_settings_and_reject_nonsense():

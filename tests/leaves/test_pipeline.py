@@ -93,7 +93,7 @@ def test_method_runs_alone_with_oracle_depth(leaf_scene, tmp_path):
     for i, d in enumerate(depths):
         np.save(views / "depth" / f"{i:04d}.npy", d.astype(np.float32))
     method = Leaves()
-    assert method.name == "leaves" and method.inputs == "views"
+    assert method.name == "leaves" and method.inputs == "points"
     method.reconstruct(views.parent, tmp_path / "out", seed=0, depth="oracle", ground=False,
                        reference_leaf_length=0.1, delta_plane=0.02)
     rec = read_reconstruction(tmp_path / "out")

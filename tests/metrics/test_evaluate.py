@@ -46,6 +46,7 @@ def test_gt_oracle_scores_perfectly(case):
     for tau in ("0.5%", "1%", "2%"):
         assert res[f"skeleton.vf1@{tau}"] == 1.0
     assert res["leaves.strict_f1"] == 1.0
+    assert res["leaves.shape_error"] < 1e-6 and res["leaves.normal_error_deg"] < 0.01  # leaves.json in float
     for part in ("all", "wood", "foliage"):
         for tau in ("0.5%", "1%", "2%"):
             assert res[f"surface.{part}.fscore@{tau}"] >= 0.999
@@ -74,6 +75,7 @@ def test_degraded_reconstructions_score_worse(case):
     assert 0 < res["reprojection.error"] and res["reprojection.iou"] < 1
     n = len(plant.leaves)
     assert res["leaves.accuracy"] == pytest.approx(1 - 2 / n) and res["leaves.dic"] == -2
+    assert res["leaves.strict_matched"] == n - 2 and res["leaves.shape_error"] < 1e-6
     assert res["surface.foliage.recall@1%"] < 0.5 and res["points.count"] == len(plant.branch_mesh.vertices)
 
 

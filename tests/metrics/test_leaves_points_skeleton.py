@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from plantbench.errors import InputError
-from plantbench.metrics.leaves import leaf_count_metrics, leaf_detection
+from plantbench.metrics.leaves import leaf_count_metrics, leaf_detection, leaf_matches, leaf_shape_errors
 from plantbench.metrics.points import cloud_metrics
 from plantbench.metrics.skeleton import crown_area, dbh, sample_skeleton, skeleton_attributes, skeleton_prf
-from plantbench.plant import Skeleton
+from plantbench.plant import Leaf, Skeleton
 
 from .synth import random_tree
 
@@ -50,6 +50,56 @@ def test_leaf_detection_matches_dense_hungarian(rng, m, n, radius):
     assert got["precision"] == pytest.approx(expected / n) and got["recall"] == pytest.approx(expected / m)
     same = leaf_detection(gt, gt, radius=radius)
     assert same["matched"] == m
+
+
+def _flat_leaf(transform: np.ndarray, length: float = 0.2) -> Leaf:
+    """A flat, straight default Bezier blade (every out-of-plane parameter 0)."""
+    from plantbench.geometry.leaf import BezierLeaf
+
+    return Leaf(0, -1, transform, BezierLeaf().__dict__.copy(), length, 0.3 * length)
+
+
+def _rot_x(deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    t = np.eye(4)
+    t[1:3, 1:3] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    return t
+
+
+def test_leaf_shape_errors_analytic_cases():
+    """A flat blade against: itself (0, 0 deg); itself lifted 1 cm along its normal (symmetric mean distance 1 cm
+    exactly, 0.05 of a 20 cm blade); itself flipped upside down (0 deg: normals are unsigned); itself rolled 30 deg
+    about its midrib (30 deg; the shape error of the roll by hand: points at half-width w lie w sin 30 deg off the
+    other blade's plane, within its outline)."""
+    base = np.eye(4)
+    base[:3, 3] = [1.0, 2.0, 0.5]
+    lifted = base.copy()
+    lifted[2, 3] += 0.01
+    gt = [_flat_leaf(base)] * 4
+    pred = [_flat_leaf(base), _flat_leaf(lifted), _flat_leaf(base @ _rot_x(180)), _flat_leaf(base @ _rot_x(30))]
+    shape, angle = leaf_shape_errors(gt, pred, np.array([[0, 0], [1, 1], [2, 2], [3, 3]]))
+    assert shape[0] == pytest.approx(0, abs=1e-6) and angle[0] == pytest.approx(0, abs=1e-4)
+    assert shape[1] == pytest.approx(0.05, rel=1e-4) and angle[1] == pytest.approx(0, abs=1e-4)
+    assert shape[2] == pytest.approx(0, abs=1e-6) and angle[2] == pytest.approx(0, abs=1e-4)
+    assert angle[3] == pytest.approx(30, abs=1e-4)
+    # rolled 30 deg: every point at signed width y is |y| sin 30 deg from the other plane, whose outline covers its
+    # foot (cos 30 |y| < |y|); the blade's area-weighted mean |y| from a fine grid of the same outline
+    from plantbench.geometry.leaf import BezierLeaf, leaf_points
+
+    u, v = np.meshgrid(np.linspace(-1, 1, 401), np.linspace(0, 1, 801))
+    pts = leaf_points(BezierLeaf().vector(), u.ravel(), v.ravel()).reshape(801, 401, 3)
+    half = np.abs(pts[:, -1, 1])  # half-width along the blade (unit leaf)
+    mean_abs_y = float(np.trapezoid(half**2 / 2, pts[:, 0, 0]) / np.trapezoid(half, pts[:, 0, 0]))
+    assert shape[3] == pytest.approx(np.sin(np.radians(30)) * mean_abs_y, rel=0.03)
+
+
+def test_leaf_matches_pairs_are_within_radius_and_one_to_one(rng):
+    gt = rng.random((50, 3))
+    pred = gt[rng.permutation(50)[:35]] + rng.normal(0, 0.01, (35, 3))
+    pairs = leaf_matches(gt, pred, radius=0.05)
+    assert len(pairs) == leaf_detection(gt, pred, radius=0.05)["matched"]
+    assert len(set(pairs[:, 0])) == len(pairs) == len(set(pairs[:, 1]))
+    assert np.all(np.linalg.norm(gt[pairs[:, 0]] - pred[pairs[:, 1]], axis=1) <= 0.05)
 
 
 def test_cloud_metrics_brute_force(rng):

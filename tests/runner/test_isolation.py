@@ -109,7 +109,8 @@ def _fake_capture(root):
                                                                np.array([[32.0, 24.0]])))
     (v / "transforms.json").write_text("{}")
     (v / "capture.json").write_text(json.dumps({"plant": {"height": 3.2, "species": "maple"}, "seed": 1,
-                                                "scan": {"points": 10}, "settings": {"views": 1}}))
+                                                "scan": {"points": 10}, "settings": {"views": 1},
+                                                "leaf_pixels": {"leaves": 3, "median_px": 250.0}}))
     (root / "scan").mkdir()
     rng = np.random.default_rng(0)
     write_points(root / "scan" / "scan.ply", rng.random((20, 3)),
