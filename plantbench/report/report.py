@@ -20,7 +20,7 @@ from plantbench.report.gate import read_results, read_run_meta
 from plantbench.report.tables import HEADLINE, KEY_METRICS, aggregate, format_value, metric_info
 
 __all__ = ["FORMATS", "wide_table", "headline_table", "comparison_table", "render_table", "write_report",
-           "family_ranking", "family_study", "distance_figure", "calibration_note"]
+           "family_ranking", "family_study", "distance_figure", "leaf_figure", "calibration_note"]
 
 ORACLES = ("gt",)
 STUDY_METRICS = ("stava.S_T", "mesh_to_surface.D_cm", "reprojection.error", "skeleton.f1@1.0", "leaves.accuracy")
@@ -407,6 +407,7 @@ def write_report(run_dir: str | os.PathLike, formats: tuple[str, ...] = FORMATS,
         origin = f"{origin}\n\n{note}" if origin else note
     figures = _figures(table, out / "figures", sweep)
     for extra in (distance_figure(run_dir, out / "figures" / "distances.png"),
+                  leaf_figure(run_dir, out / "figures" / "leaves.png"),
                   timeline_figure(run_dir, out / "figures" / "timeline.png")):
         if extra is not None:
             figures.append(extra)
@@ -648,3 +649,95 @@ def distance_figure(run_dir: str | os.PathLike, path: str | os.PathLike, *, max_
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _label_colours(labels: np.ndarray, seed: int = 0) -> np.ndarray:
+    """(h, w, 3) float RGB of an integer label image: a colour of matplotlib's tab20 per label > 0 (labels shuffled
+    by ``seed`` so that neighbours rarely share one), NaN where 0."""
+    from matplotlib import colormaps
+
+    n = int(labels.max()) + 1
+    shuffle = np.random.Generator(np.random.PCG64(seed)).permutation(n)
+    palette = colormaps["tab20"](shuffle % 20)[:, :3]
+    rgb = palette[labels]
+    rgb[labels <= 0] = np.nan
+    return rgb
+
+
+def leaf_figure(run_dir: str | os.PathLike, path: str | os.PathLike, *, method: str = "leaves", view: int = 0,
+                max_cases: int = 6) -> Path | None:
+    """Leaf segmentation and fitting on one view of each case (up to ``max_cases``), one row per case: the view,
+    the ground-truth leaves (instance map), the candidate leaves ``method`` segmented in the view (its
+    ``candidates/`` maps), and its fitted leaves (``leaves.json``) projected into the view, each blade a polygon in
+    its own colour over the greyed image. Cropped to the plant. Returns the PNG written, or None when no cell of the
+    run has the method's candidate maps."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import PolyCollection
+    from PIL import Image
+
+    from plantbench.cameras import read_cameras
+    from plantbench.geometry.leaf import BezierLeaf, tessellate_placed
+    from plantbench.io.plantio import read_reconstruction
+
+    cells = [c for c in _cells(Path(run_dir)) if c["status"] == "ok" and c["method"] == method
+             and (c["recon"] / "candidates").is_dir()]
+    cells = list({c["case"]: c for c in cells}.values())[:max_cases]
+    if not cells:
+        return None
+    fig, axes = plt.subplots(len(cells), 4, figsize=(12, 3.2 * len(cells)), squeeze=False, layout="constrained")
+    for row, cell in zip(axes, cells, strict=True):
+        views = cell["capture"] / "views"
+        cameras, names = read_cameras(views / "cameras.json")
+        cam, stem = cameras[view], Path(names[view]).stem
+        image = np.asarray(Image.open(views / "images" / names[view]).convert("RGB"))
+        grey = np.repeat(image.mean(axis=2, keepdims=True), 3, axis=2) / 255.0 * 0.6 + 0.4
+        inst = np.array(Image.open(views / "instance" / f"{stem}.png")).astype(np.int64)
+        cand_file = cell["recon"] / "candidates" / f"{stem}.png"
+        cand = np.array(Image.open(cand_file)).astype(np.int64) if cand_file.is_file() else np.zeros_like(inst)
+        plant_px = np.argwhere(inst > 0)
+        (r0, c0), (r1, c1) = plant_px.min(0), plant_px.max(0)
+        pad = 10
+        r0, c0, r1, c1 = max(r0 - pad, 0), max(c0 - pad, 0), min(r1 + pad, inst.shape[0]), min(c1 + pad, inst.shape[1])
+        leaves = read_reconstruction(cell["recon"]).leaves or []
+        n_gt = len(np.unique(inst[inst >= 2]))
+        panels = [(image / 255.0, f"{cell['case']}: view {view}"),
+                  (_overlay(grey, _label_colours(np.where(inst >= 2, inst - 1, 0))),
+                   f"ground-truth leaves ({n_gt} visible)"),
+                  (_overlay(grey, _label_colours(cand, seed=1)), f"{method}: candidates ({len(np.unique(cand)) - 1})"),
+                  (grey, f"{method}: fitted leaves ({len(leaves)} in all)")]
+        for ax, (img, title) in zip(row, panels, strict=True):
+            ax.imshow(img, interpolation="nearest")
+            ax.set_title(title, fontsize=8)
+            ax.set_xlim(c0, c1)
+            ax.set_ylim(r1, r0)
+            ax.set_xticks([])
+            ax.set_yticks([])
+        if leaves:
+            omega = np.stack([BezierLeaf(**leaf.params).vector() for leaf in leaves])
+            tr = np.stack([np.asarray(leaf.transform, float) for leaf in leaves])
+            verts, faces = tessellate_placed(omega, np.array([leaf.length for leaf in leaves]), tr[:, :3, :3],
+                                             tr[:, :3, 3], (3, 8))
+            uv, z = cam.project(verts.reshape(-1, 3))
+            tris = uv[faces]
+            front = (z[faces] > 0).all(axis=1)
+            per_leaf = len(faces) // len(leaves)
+            colour = _label_colours(np.arange(len(leaves) + 1), seed=2)[1:]
+            # draw far blades first: nearer ones cover them, as in the image
+            depth = z[faces].mean(axis=1)
+            order = np.argsort(-depth[front], kind="stable")
+            idx = np.flatnonzero(front)[order]
+            row[3].add_collection(PolyCollection(tris[idx], facecolors=colour[idx // per_leaf], edgecolors="face",
+                                                 linewidths=0.2))
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _overlay(grey: np.ndarray, colours: np.ndarray) -> np.ndarray:
+    """``colours`` (NaN: transparent) over the greyed image."""
+    return np.where(np.isnan(colours), grey, colours)

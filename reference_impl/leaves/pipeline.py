@@ -56,6 +56,8 @@ class LeafFitResult:
     points : (k_i, 3) float, the segmented points of each leaf (same order)
     skipped : count per reason (:data:`SKIP_REASONS`)
     stats : views, candidates, delta_plane, leaf length used, template ratio, timings (seconds)
+    candidate_maps : per view (image name -> (h, w) uint16), the section 4.1 candidate leaf of each pixel (0: none,
+        k + 1: the view's candidate k), before the section 4.2 refinement across views
     """
 
     leaves: list[Leaf]
@@ -63,6 +65,7 @@ class LeafFitResult:
     points: list[np.ndarray]
     skipped: dict[str, int] = field(default_factory=dict)
     stats: dict = field(default_factory=dict)
+    candidate_maps: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def views_folder(path: str | os.PathLike) -> Path:
@@ -236,7 +239,20 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
     stats["timings"] = timings
     stats["fit_iterations_median"] = float(np.median([f.iterations for f in fits])) if fits else 0.0
     stats["fits_reset"] = int(sum(f.reset for f in fits))
-    return LeafFitResult(leaves, fits, leaf_pts, skipped, stats)
+    return LeafFitResult(leaves, fits, leaf_pts, skipped, stats, _candidate_maps(segs, cameras, names))
+
+
+def _candidate_maps(segs: list[ViewSegments | None], cameras: list[Camera], names: list[str]) -> dict[str, np.ndarray]:
+    """Per view with segments, the candidate label image (0: none, k + 1: candidate k of the view)."""
+    maps = {}
+    for s, cam, name in zip(segs, cameras, names, strict=True):
+        if s is None:
+            continue
+        label = np.zeros(cam.height * cam.width, np.uint16)
+        sel = s.candidate >= 0
+        label[s.pixel[sel]] = (s.candidate[sel] + 1).astype(np.uint16)
+        maps[name] = label.reshape(cam.height, cam.width)
+    return maps
 
 
 def _read_depths(views: Path, cameras: list[Camera], names: list[str], *, depth_maps, depth_dir, oracle_depth: bool,
@@ -335,8 +351,11 @@ def fitted_mesh(result: LeafFitResult, resolution: tuple[int, int] = (4, 8)) -> 
 
 
 def write_leaves(out_dir: str | os.PathLike, result: LeafFitResult, *, samples_per_leaf: int = 153) -> None:
-    """Write ``leaves.json`` and ``points.ply`` (points on each fitted surface, with a ``leaf_id`` field) and
-    ``leaves_stats.json`` (skips and stats) into ``out_dir``."""
+    """Write ``leaves.json`` and ``points.ply`` (points on each fitted surface, with a ``leaf_id`` field),
+    ``leaves_stats.json`` (skips and stats) and ``candidates/STEM.png`` (each view's candidate map, uint16) into
+    ``out_dir``."""
+    from PIL import Image
+
     from plantbench.io.atomic import write_json
     from plantbench.io.plantio import write_reconstruction
 
@@ -348,3 +367,7 @@ def write_leaves(out_dir: str | os.PathLike, result: LeafFitResult, *, samples_p
     write_reconstruction(out_dir, None, leaves=result.leaves, points=pts, point_fields={"leaf_id": ids})
     write_json(Path(out_dir) / "leaves_stats.json", {"format": "plantbench.leaves-stats/1", "count": len(result.leaves),
                                                      "skipped": result.skipped, "stats": _jsonable(result.stats)})
+    if result.candidate_maps:
+        (Path(out_dir) / "candidates").mkdir(exist_ok=True)
+        for name, label in result.candidate_maps.items():
+            Image.fromarray(label).save(Path(out_dir) / "candidates" / f"{Path(name).stem}.png")

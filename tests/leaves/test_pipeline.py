@@ -98,6 +98,19 @@ def test_method_runs_alone_with_oracle_depth(leaf_scene, tmp_path):
                        reference_leaf_length=0.1, delta_plane=0.02)
     rec = read_reconstruction(tmp_path / "out")
     assert rec.leaves is not None and len(rec.leaves) >= len(truth) - 1
+    # each view's candidate map: labels on leaf pixels only, each candidate within one true leaf (a few boundary
+    # pixels aside)
+    from PIL import Image
+
+    _, _, idmaps, _ = leaf_scene
+    for i, ids in enumerate(idmaps):
+        label = np.array(Image.open(tmp_path / "out" / "candidates" / f"{i:04d}.png"))
+        assert label.dtype == np.uint16 and label.shape == ids.shape and label.max() > 0
+        on = label > 0
+        assert np.mean(ids[on] >= 0) > 0.98
+        for k in np.unique(label[on]):
+            owners = ids[label == k]
+            assert np.mean(owners == np.bincount(owners[owners >= 0]).argmax()) > 0.9
 
 
 def test_guo_takes_its_leaves_from_the_images(leaf_scene, tmp_path):
@@ -128,3 +141,37 @@ def test_guo_takes_its_leaves_from_the_images(leaf_scene, tmp_path):
     # the fitted blades are in the mesh: each truth blade sample has a mesh vertex within 1 cm (a tenth of a leaf)
     assert np.percentile(cKDTree(rec.mesh.vertices).query(blades)[0], 90) < 0.01
     assert all(0 <= lf.node < len(rec.skeleton.positions) for lf in rec.leaves)
+
+
+def test_leaf_figure_draws_the_candidates_and_the_fitted_leaves(leaf_scene, tmp_path):
+    """The report's leaf figure from a run folder whose leaves cell has candidate maps; none without them."""
+    import json
+    import shutil
+
+    from PIL import Image
+
+    from plantbench.report.report import leaf_figure
+
+    views, depths, idmaps, _ = leaf_scene
+    run = tmp_path / "run"
+    cap = run / "cache" / "capture" / "c"
+    shutil.copytree(views, cap / "views")
+    (cap / "views" / "instance").mkdir()
+    for i, ids in enumerate(idmaps):
+        Image.fromarray(np.where(ids >= 0, ids + 2, 0).astype(np.uint16)).save(cap / "views" / "instance" / f"{i:04d}.png")
+    (views / "depth").mkdir()
+    for i, d in enumerate(depths):
+        np.save(views / "depth" / f"{i:04d}.npy", d.astype(np.float32))
+    out = run / "cache" / "method" / "m"
+    Leaves().reconstruct(views.parent, out, seed=0, depth="oracle", ground=False, reference_leaf_length=0.1)
+    cell = {"case": "c-1", "species": "c", "method": "leaves", "status": "ok", "sweep": None,
+            "capture": "cache/capture/c", "recon": "cache/method/m"}
+    (run / "cells.json").write_text(json.dumps([cell]))
+    png = leaf_figure(run, tmp_path / "leaves.png")
+    assert png is not None
+    img = np.asarray(Image.open(png).convert("RGB")).astype(int)
+    # four panels: the candidate and the fitted-leaf panels hold saturated colours (a grey image has none)
+    sat = img.max(axis=2) - img.min(axis=2)
+    assert img.shape[1] > 4 * 200 and (sat > 80).mean() > 0.01
+    shutil.rmtree(out / "candidates")
+    assert leaf_figure(run, tmp_path / "none.png") is None
