@@ -60,6 +60,9 @@ class LeafParams:
     """Rigid ICP iterations (template to candidate), correspondence distance delta_plane."""
     capture_distance: float = 0.5
     """Scene points within this many delta_plane of the ICP-placed template join the leaf (the paper: 1)."""
+    min_width_fraction: float = 0.5
+    """A fitted blade whose width is less than this fraction of the template's width-to-length ratio times its
+    length is a twig or a sliver: skipped as ``not_leaf_shaped``. [S]"""
     duplicate_fraction: float = 0.5
     """A candidate whose points were already claimed by earlier leaves in this proportion is a duplicate."""
     # ---- section 5: fitting

@@ -17,6 +17,9 @@ Documented skips (counted in :attr:`LeafFitResult.skipped`):
 - ``degenerate_ellipse``: a candidate or extracted leaf whose points are collinear (no enclosing ellipse);
 - ``duplicate``: a candidate already claimed by a leaf extracted from another view (section 4.2);
 - ``few_points_after_icp``: too few unclaimed points near the ICP-placed template;
+- ``not_leaf_shaped``: a fitted blade narrower than ``min_width_fraction`` of the template's width-to-length ratio:
+  a twig or a sliver (the paper ignores branches and twigs, section 1; a stem seen from the side is planar within
+  delta_plane too, and the template ICP lays the ellipse along it). [S]
 - ``fit_failed``: the Bezier fit raised (too few mapped points).
 """
 
@@ -44,7 +47,7 @@ from .segment import Candidate, ViewSegments, backproject, candidate_confidence,
 __all__ = ["LeafFitResult", "segment_and_fit", "write_leaves", "load_depth_dir", "views_folder", "fitted_mesh"]
 
 SKIP_REASONS = ("view_without_depth", "superpixel_few_points", "superpixel_no_plane", "candidate_few_points",
-                "degenerate_ellipse", "duplicate", "few_points_after_icp", "fit_failed")
+                "degenerate_ellipse", "duplicate", "few_points_after_icp", "not_leaf_shaped", "fit_failed")
 
 
 @dataclass
@@ -233,7 +236,7 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
 
     t0 = time.perf_counter()
     leaves, fits, leaf_pts = _fit(points, groups, params=params, rng=seeded_rng(seed, "leaves", "fit"), up=up,
-                                  skipped=skipped)
+                                  skipped=skipped, min_width_ratio=params.min_width_fraction / ratio)
     timings["fit"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_all
     stats["timings"] = timings
@@ -321,14 +324,18 @@ def _segment_candidates(images, depths, cameras, *, length: float, estimate: boo
 
 
 def _fit(points: np.ndarray, groups: list[np.ndarray], *, params: LeafParams, rng: np.random.Generator, up,
-         skipped: dict[str, int]) -> tuple[list[Leaf], list[LeafFit], list[np.ndarray]]:
+         skipped: dict[str, int], min_width_ratio: float = 0.0) -> tuple[list[Leaf], list[LeafFit], list[np.ndarray]]:
     """The Bezier leaf fitted to each group of ``points``: the Leaf instances (ids in order), their fits and points;
-    the groups whose fit failed are counted in ``skipped``."""
+    the groups whose fit failed are counted in ``skipped``, the blades narrower than ``min_width_ratio`` x their
+    length as ``not_leaf_shaped``."""
     fits_or_skips = fit_leaves([points[g] for g in groups], params=params, rng=rng, up=up)
     leaves, fits, leaf_pts = [], [], []
     for g, f in zip(groups, fits_or_skips, strict=True):
         if isinstance(f, str):
             skipped["candidate_few_points" if f == "few_points" else f] += 1
+            continue
+        if f.width < min_width_ratio * f.length:
+            skipped["not_leaf_shaped"] += 1
             continue
         leaves.append(Leaf(len(leaves), -1, f.transform, BezierLeaf.from_vector(f.omega).to_dict(), f.length, f.width))
         fits.append(f)

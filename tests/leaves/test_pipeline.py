@@ -175,3 +175,39 @@ def test_leaf_figure_draws_the_candidates_and_the_fitted_leaves(leaf_scene, tmp_
     assert img.shape[1] > 4 * 200 and (sat > 80).mean() > 0.01
     shutil.rmtree(out / "candidates")
     assert leaf_figure(run, tmp_path / "none.png") is None
+
+
+def test_twig_is_not_a_leaf(tmp_path, rng):
+    """Six leaves and a twig-like strip (a blade a fifth as wide, 12 cm long, among them): the strip is planar and
+    segmented like a leaf, but its fitted blade is far narrower than the template, so it is skipped as
+    not_leaf_shaped; with the check off it becomes a seventh leaf."""
+    from PIL import Image
+
+    from plantbench.cameras import write_cameras
+    from plantbench.geometry.leaf import BezierLeaf
+
+    from .conftest import FLAT, render_flat_leaves, ring_cameras, scattered_leaves, transform
+
+    leaves = scattered_leaves(6, rng)
+    strip = BezierLeaf(sil_v1=0.15, sil_v2=0.5, sil_v3=0.85, sil_x1=0.05, sil_x2=0.06, sil_x3=0.05)
+    assert FLAT.sil_x2 / strip.sil_x2 == pytest.approx(5)
+    rot = np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]])  # along +z (upright), blade facing +x
+    twig = (strip, 0.12, transform(rot @ np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]), [0.0, 0.0, 0.05]))
+    cams = ring_cameras(6, radius=0.55, height=0.45, size=240)
+    views = tmp_path / "views"
+    (views / "images").mkdir(parents=True)
+    depths, names = [], []
+    for i, cam in enumerate(cams):
+        z, _, img = render_flat_leaves([*leaves, twig], cam, rng)
+        names.append(f"{i:04d}.png")
+        Image.fromarray(img).save(views / "images" / names[-1])
+        depths.append(z)
+    write_cameras(views / "cameras.json", cams, names)
+    res = segment_and_fit(views, depths, leaf_length_hint=0.1, seed=0, params=NOGROUND)
+    assert len(res.leaves) == len(leaves) and res.skipped["not_leaf_shaped"] >= 1
+    gt = _centroids(leaves)
+    got = np.array([lf.centroid for lf in res.leaves])
+    assert np.linalg.norm(gt[:, None] - got[None], axis=2).min(axis=0).max() < 0.01  # the kept ones are the leaves
+    off = segment_and_fit(views, depths, leaf_length_hint=0.1, seed=0,
+                          params=LeafParams(ground=False, min_width_fraction=1e-6))
+    assert len(off.leaves) == len(leaves) + 1 and off.skipped["not_leaf_shaped"] == 0
