@@ -27,6 +27,11 @@ class LeafParams:
     reference_leaf_length: float = 0.10
     """Leaf length the paper's delta_plane is meant for (single-lobed beech/holly/cherry leaves; an assumption, the
     paper does not state it). delta_plane is scaled by leaf_length / reference_leaf_length."""
+    # ---- depth input
+    speckle_fraction: float = 0.01
+    """Depth speckle removal before segmentation [S]: an 8-connected piece of a view's depth map smaller than this
+    fraction of (leaf length in pixels at the view's median depth)^2 loses its depth (exact depth has none; on mvs
+    depth of the leaves suite's rubber plant they are 98 % of the leaf stage's false leaves). 0: off."""
     # ---- section 4.1: per view
     superpixels_per_leaf: float = 40.0
     """SLIC target: expected projected leaf area / superpixel area (the paper over-segments leaves, Fig. 2(b)). [S]"""
@@ -65,6 +70,10 @@ class LeafParams:
     length is a twig or a sliver: skipped as ``not_leaf_shaped``. [S]"""
     duplicate_fraction: float = 0.5
     """A candidate whose points were already claimed by earlier leaves in this proportion is a duplicate."""
+    overlap_fraction: float = 0.8
+    """After the fit, a blade whose points lie within ``capture_distance`` x delta_plane of a larger fitted blade in
+    at least this proportion is a fragment of it, dropped as ``duplicate`` [S] (0.5 dropped real leaves beside
+    conjoined blades on the rubber plant's mvs depth: recall 0.86 against 0.95 at 0.8)."""
     # ---- section 5: fitting
     scanlines: int = 24
     """UV mapping: scanlines perpendicular to the axis, evenly spaced in v in [0, 1]."""
@@ -92,12 +101,16 @@ class LeafParams:
             value = getattr(self, f.name)
             if isinstance(value, bool | str):
                 continue
+            if f.name == "speckle_fraction" and value == 0:
+                continue
             if not isinstance(value, int | float) or value <= 0:
                 raise InputError(f"leaf parameter {f.name} must be a positive number, got {value!r}", field=f.name)
         if not 0 < self.affinity_threshold < 1 or not 0 < self.min_inlier_fraction <= 1:
             raise InputError("affinity_threshold and min_inlier_fraction must lie in (0, 1)")
         if self.lm_backend not in ("batched", "scipy"):
             raise InputError(f"lm_backend must be 'batched' or 'scipy', got {self.lm_backend!r}", field="lm_backend")
+        if not 0 < self.overlap_fraction <= 1:
+            raise InputError("overlap_fraction must lie in (0, 1]", field="overlap_fraction")
         if not 0 < self.duplicate_fraction <= 1:
             raise InputError("duplicate_fraction must lie in (0, 1]", field="duplicate_fraction")
 

@@ -12,10 +12,14 @@ never reads ground truth.
 Documented skips (counted in :attr:`LeafFitResult.skipped`):
 
 - ``view_without_depth``: a view with no depth map or no finite depth;
+- (not a skip, counted in ``stats["speckle_pixels"]``) depth speckles: connected pieces of a depth map smaller than
+  ``speckle_fraction`` of a leaf's projected square, the isolated wrong depths of textureless or out-of-range
+  background that pass the mvs consistency check, lose their depth before segmentation;
 - ``superpixel_few_points`` / ``superpixel_no_plane``: superpixels dropped before the graph (section 4.1);
 - ``candidate_few_points``: a candidate leaf with fewer than ``min_candidate_points`` points;
 - ``degenerate_ellipse``: a candidate or extracted leaf whose points are collinear (no enclosing ellipse);
-- ``duplicate``: a candidate already claimed by a leaf extracted from another view (section 4.2);
+- ``duplicate``: a candidate already claimed by a leaf extracted from another view (section 4.2), or a fitted blade
+  whose points lie on a larger fitted blade (:func:`_drop_overlapping`);
 - ``few_points_after_icp``: too few unclaimed points near the ICP-placed template;
 - ``not_leaf_shaped``: a fitted blade narrower than ``min_width_fraction`` of the template's width-to-length ratio:
   a twig or a sliver (the paper ignores branches and twigs, section 1; a stem seen from the side is planar within
@@ -217,6 +221,8 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
         return LeafFitResult([], [], [], skipped, stats)
 
     length = _first_leaf_length(depths, cameras, leaf_length_hint)
+    if params.speckle_fraction > 0:
+        depths, stats["speckle_pixels"] = _remove_speckles(depths, cameras, length, params.speckle_fraction)
     t0 = time.perf_counter()
     grounds = (_ground_masks(depths, cameras, params.scaled_delta(length), seeded_rng(seed, "leaves", "ground"))
                if params.ground else [None] * len(depths))
@@ -237,6 +243,8 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
     t0 = time.perf_counter()
     leaves, fits, leaf_pts = _fit(points, groups, params=params, rng=seeded_rng(seed, "leaves", "fit"), up=up,
                                   skipped=skipped, min_width_ratio=params.min_width_fraction / ratio)
+    leaves, fits, leaf_pts = _drop_overlapping(leaves, fits, leaf_pts, radius=params.capture_distance * delta,
+                                               fraction=params.overlap_fraction, skipped=skipped)
     timings["fit"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_all
     stats["timings"] = timings
@@ -278,6 +286,29 @@ def _read_depths(views: Path, cameras: list[Camera], names: list[str], *, depth_
             depths[i] = None
             skipped["view_without_depth"] += 1
     return depths
+
+
+def _remove_speckles(depths: list[np.ndarray | None], cameras: list[Camera], length: float, fraction: float
+                     ) -> tuple[list[np.ndarray | None], int]:
+    """Depth speckles out: per view, the 8-connected components of pixels with a depth smaller than ``fraction`` x
+    the square of the leaf length in pixels (at the view's median depth) lose their depth. Returns the maps and the
+    number of pixels cleared."""
+    from scipy import ndimage
+
+    out, cleared = [], 0
+    for d, cam in zip(depths, cameras, strict=True):
+        valid = None if d is None else np.isfinite(d) & (d > 0)
+        if valid is None or not valid.any():
+            out.append(d)
+            continue
+        min_px = fraction * (length * cam.K[0, 0] / float(np.median(d[valid]))) ** 2
+        label, _ = ndimage.label(valid, structure=np.ones((3, 3), bool))
+        small = np.bincount(label.ravel()) < min_px
+        small[0] = False
+        drop = small[label]
+        cleared += int(drop.sum())
+        out.append(np.where(drop, np.nan, d))
+    return out, cleared
 
 
 def _first_leaf_length(depths: list[np.ndarray | None], cameras: list[Camera], hint: float | None) -> float:
@@ -341,6 +372,31 @@ def _fit(points: np.ndarray, groups: list[np.ndarray], *, params: LeafParams, rn
         fits.append(f)
         leaf_pts.append(points[g])
     return leaves, fits, leaf_pts
+
+
+def _drop_overlapping(leaves: list[Leaf], fits: list[LeafFit], leaf_pts: list[np.ndarray], *, radius: float,
+                      fraction: float, skipped: dict[str, int]) -> tuple[list[Leaf], list[LeafFit], list[np.ndarray]]:
+    """De-duplication of the fitted blades [S]: largest blade (length x width) first, a leaf whose points lie within
+    ``radius`` of an already kept blade's fitted surface in at least ``fraction`` of cases is a fragment of that leaf
+    (section 4.2's de-duplication compares the candidates' own points; a fragment whose points the template ICP did
+    not reach is caught by the fitted, whole blade) and is dropped as ``duplicate``. Ids are renumbered in order."""
+    from scipy.spatial import cKDTree
+
+    order = np.argsort([-f.length * f.width for f in fits], kind="stable")
+    kept: list[int] = []
+    surfaces: list[np.ndarray] = []
+    for k in order:
+        if surfaces:
+            near = cKDTree(np.concatenate(surfaces)).query(leaf_pts[k], distance_upper_bound=radius)[0] <= radius
+            if near.mean() >= fraction:
+                skipped["duplicate"] += 1
+                continue
+        kept.append(int(k))
+        surfaces.append(fits[k].surface(17, 33))
+    kept.sort()
+    out = [Leaf(i, -1, leaves[k].transform, leaves[k].params, leaves[k].length, leaves[k].width)
+           for i, k in enumerate(kept)]
+    return out, [fits[k] for k in kept], [leaf_pts[k] for k in kept]
 
 
 def fitted_mesh(result: LeafFitResult, resolution: tuple[int, int] = (4, 8)) -> TriMesh:

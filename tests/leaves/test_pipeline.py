@@ -211,3 +211,49 @@ def test_twig_is_not_a_leaf(tmp_path, rng):
     off = segment_and_fit(views, depths, leaf_length_hint=0.1, seed=0,
                           params=LeafParams(ground=False, min_width_fraction=1e-6))
     assert len(off.leaves) == len(leaves) + 1 and off.skipped["not_leaf_shaped"] == 0
+
+
+def test_speckles_smaller_than_the_fraction_of_a_leaf_lose_their_depth():
+    """A 100 x 100 view, focal 100 px, at depth 2 m with a leaf 0.4 m long: 20 px long, so fraction 0.1 clears
+    pieces under 40 px. A 7 x 7 block (49 px) stays, a 6 x 6 block (36 px) and a lone pixel go; pixels touching
+    diagonally are one piece."""
+    from plantbench.cameras import Camera
+    from reference_impl.leaves.pipeline import _remove_speckles
+
+    cam = Camera(K=np.array([[100.0, 0, 50], [0, 100, 50], [0, 0, 1]]), R=np.eye(3), t=np.zeros(3), width=100,
+                 height=100)
+    d = np.full((100, 100), np.nan)
+    d[10:17, 10:17] = 2.0
+    d[40:46, 40:46] = 2.0
+    d[80, 80] = 2.0
+    d[60:66, 60:66] = 2.0  # 36 px, joined diagonally to the 6 px below: 42 px, kept
+    d[66:72, 66] = 2.0
+    out, cleared = _remove_speckles([d, None], [cam, cam], 0.4, 0.1)
+    assert out[1] is None and cleared == 36 + 1
+    assert np.isfinite(out[0][10:17, 10:17]).all() and np.isfinite(out[0][60:66, 60:66]).all()
+    assert np.isnan(out[0][40:46, 40:46]).all() and np.isnan(out[0][80, 80])
+
+
+def test_a_fragment_lying_on_a_larger_fitted_blade_is_a_duplicate():
+    from plantbench.geometry.leaf import BezierLeaf
+    from plantbench.plant import Leaf
+    from reference_impl.leaves.fit import LeafFit
+    from reference_impl.leaves.pipeline import _drop_overlapping
+
+    omega = BezierLeaf(sil_x1=0.25, sil_x2=0.3, sil_x3=0.12).vector()
+    far = np.eye(4)
+    far[:3, 3] = [1.0, 0.0, 0.0]
+    big = LeafFit(omega, np.eye(4), 0.2, 0.06, 0.0, 3)
+    other = LeafFit(omega, far, 0.2, 0.06, 0.0, 3)
+    small = LeafFit(omega, np.eye(4), 0.06, 0.02, 0.0, 3)
+    pts = big.surface(9, 17)
+    frag = pts[(pts[:, 0] > 0.05) & (pts[:, 0] < 0.11)] + [0, 0, 0.005]  # on the big blade, 5 mm off
+    leaves = [Leaf(i, -1, f.transform, {}, f.length, f.width) for i, f in enumerate((small, big, other))]
+    skipped = {"duplicate": 0}
+    kept, fits, _ = _drop_overlapping(leaves, [small, big, other], [frag, pts, other.surface(9, 17)], radius=0.01,
+                                      fraction=0.8, skipped=skipped)
+    assert skipped["duplicate"] == 1 and [f.length for f in fits] == [0.2, 0.2] and [lf.id for lf in kept] == [0, 1]
+    skipped["duplicate"] = 0
+    _drop_overlapping(leaves, [small, big, other], [frag + [0, 0, 0.02], pts, other.surface(9, 17)], radius=0.01,
+                      fraction=0.8, skipped=skipped)
+    assert skipped["duplicate"] == 0  # 2.5 cm above the blade: another leaf
