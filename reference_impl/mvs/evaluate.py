@@ -5,10 +5,7 @@ closing note; the suite's official point metrics live in plantbench.metrics, who
   point-to-triangle distances (:func:`plantbench.metrics.surface.point_to_mesh_distances`);
 - completeness: of the ground-truth surface samples (:func:`plantbench.metrics.surface.sample_surface`) visible in
   >= 2 views (visibility from the exact depth maps), the fraction with a cloud point within ``tau`` (a fraction of
-  the plant height);
-- leaf depth (:func:`leaf_depth_accuracy`): per view, the share of the leaf pixels (instance map) whose estimated
-  depth is within ``tol`` x the plant height of the exact depth (a pixel without an estimate counts as wrong), and
-  the share with an estimate.
+  the plant height).
 """
 
 from __future__ import annotations
@@ -21,7 +18,7 @@ from plantbench.cameras import Camera, read_cameras
 from plantbench.metrics.surface import nearest_distances, point_to_mesh_distances, sample_surface
 from plantbench.plant import TriMesh, check_shape
 
-__all__ = ["visible_counts", "evaluate_cloud", "leaf_depth_accuracy"]
+__all__ = ["visible_counts", "evaluate_cloud"]
 
 
 def visible_counts(points: np.ndarray, cameras: list[Camera], depths: list[np.ndarray], rel_tol: float = 0.01) -> np.ndarray:
@@ -74,49 +71,3 @@ def evaluate_cloud(case_dir: str | Path, points: np.ndarray, *, tau: float = 0.0
         "tau_rel": tau,
         "visible_samples": int(vis.sum()),
     }
-
-
-def leaf_depth_accuracy(case_dir: str | Path, depth_dir: str | Path, *, tol: float = 0.01) -> dict:
-    """How well per-view depth maps (``depth_dir/STEM.npz``, key ``depth``, NaN where rejected: the mvs stage's
-    output; or ``STEM.npy``) hold the leaves of a capture with ground truth.
-
-    Per view with leaf pixels (instance >= 2): ``within`` = leaf pixels whose depth is within ``tol`` x plant height
-    of the exact depth / leaf pixels; ``kept`` = leaf pixels with a finite depth / leaf pixels.
-
-    Returns
-    -------
-    dict: height, tol, views, leaf_pixels (all views), within and kept pooled over the views' leaf pixels,
-    within_median and kept_median over the views, within_of_kept (pooled, among the pixels with a depth)
-    """
-    from PIL import Image
-
-    from plantbench.io.plantio import read_plant
-
-    case = Path(case_dir)
-    _, meta = read_plant(case)
-    height = float(meta.height)
-    _, names = read_cameras(case / "views" / "cameras.json")
-    from reference_impl.leaves.pipeline import load_depth_dir
-
-    estimated = load_depth_dir(depth_dir, names)
-    n_leaf = n_kept = n_within = 0
-    per_within, per_kept = [], []
-    for name, est in zip(names, estimated, strict=True):
-        stem = Path(name).stem
-        leaf = np.array(Image.open(case / "views" / "instance" / f"{stem}.png")) >= 2
-        if not leaf.any():
-            continue
-        exact = np.load(case / "views" / "depth" / f"{stem}.npy").astype(np.float64)
-        est = np.full(exact.shape, np.nan) if est is None else est
-        kept = leaf & np.isfinite(est)
-        within = kept & (np.abs(np.where(kept, est, 0.0) - exact) <= tol * height)
-        n_leaf, n_kept, n_within = n_leaf + leaf.sum(), n_kept + kept.sum(), n_within + within.sum()
-        per_within.append(within.sum() / leaf.sum())
-        per_kept.append(kept.sum() / leaf.sum())
-    if not n_leaf:
-        return {"height": height, "tol": tol, "views": 0, "leaf_pixels": 0, "within": None, "kept": None,
-                "within_median": None, "kept_median": None, "within_of_kept": None}
-    return {"height": height, "tol": tol, "views": len(per_within), "leaf_pixels": int(n_leaf),
-            "within": float(n_within / n_leaf), "kept": float(n_kept / n_leaf),
-            "within_median": float(np.median(per_within)), "kept_median": float(np.median(per_kept)),
-            "within_of_kept": float(n_within / n_kept) if n_kept else None}

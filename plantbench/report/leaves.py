@@ -1,0 +1,67 @@
+"""The leaves suite's own measures, beside the metrics (``reports/leaves``): how well the per-view depth maps of a
+method's input hold the leaves (:func:`leaf_depth_accuracy`, the mvs stage measured against the exact depth: the
+issue's "keeps small foreground leaves"), read from a run's cache by the report.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["leaf_depth_accuracy"]
+
+
+def leaf_depth_accuracy(case_dir: str | Path, depth_dir: str | Path, *, tol: float = 0.01) -> dict:
+    """How well per-view depth maps (``depth_dir/STEM.npz``, key ``depth``, NaN where rejected: the mvs stage's
+    output; or ``STEM.npy``) hold the leaves of a capture with ground truth.
+
+    Per view with leaf pixels (instance >= 2): ``within`` = leaf pixels whose depth is within ``tol`` x plant height
+    of the exact depth / leaf pixels; ``kept`` = leaf pixels with a finite depth / leaf pixels.
+
+    Returns
+    -------
+    dict: height, tol, views, leaf_pixels (all views), within and kept pooled over the views' leaf pixels,
+    within_median and kept_median over the views, within_of_kept (pooled, among the pixels with a depth)
+    """
+    from PIL import Image
+
+    from plantbench.cameras import read_cameras
+    from plantbench.io.plantio import read_plant
+
+    case = Path(case_dir)
+    _, meta = read_plant(case)
+    height = float(meta.height)
+    _, names = read_cameras(case / "views" / "cameras.json")
+    estimated = [_depth_map(Path(depth_dir), Path(name).stem) for name in names]
+    n_leaf = n_kept = n_within = 0
+    per_within, per_kept = [], []
+    for name, est in zip(names, estimated, strict=True):
+        stem = Path(name).stem
+        leaf = np.array(Image.open(case / "views" / "instance" / f"{stem}.png")) >= 2
+        if not leaf.any():
+            continue
+        exact = np.load(case / "views" / "depth" / f"{stem}.npy").astype(np.float64)
+        est = np.full(exact.shape, np.nan) if est is None else est
+        kept = leaf & np.isfinite(est)
+        within = kept & (np.abs(np.where(kept, est, 0.0) - exact) <= tol * height)
+        n_leaf, n_kept, n_within = n_leaf + leaf.sum(), n_kept + kept.sum(), n_within + within.sum()
+        per_within.append(within.sum() / leaf.sum())
+        per_kept.append(kept.sum() / leaf.sum())
+    if not n_leaf:
+        return {"height": height, "tol": tol, "views": 0, "leaf_pixels": 0, "within": None, "kept": None,
+                "within_median": None, "kept_median": None, "within_of_kept": None}
+    return {"height": height, "tol": tol, "views": len(per_within), "leaf_pixels": int(n_leaf),
+            "within": float(n_within / n_leaf), "kept": float(n_kept / n_leaf),
+            "within_median": float(np.median(per_within)), "kept_median": float(np.median(per_kept)),
+            "within_of_kept": float(n_within / n_kept) if n_kept else None}
+
+
+def _depth_map(folder: Path, stem: str) -> np.ndarray | None:
+    """``folder/STEM.npz`` (key ``depth``, the mvs stage's output) or ``STEM.npy``; None when neither exists."""
+    if (folder / f"{stem}.npz").is_file():
+        with np.load(folder / f"{stem}.npz") as z:
+            return np.asarray(z["depth"], np.float64)
+    if (folder / f"{stem}.npy").is_file():
+        return np.asarray(np.load(folder / f"{stem}.npy"), np.float64)
+    return None
