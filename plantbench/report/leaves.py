@@ -65,3 +65,58 @@ def _depth_map(folder: Path, stem: str) -> np.ndarray | None:
     if (folder / f"{stem}.npy").is_file():
         return np.asarray(np.load(folder / f"{stem}.npy"), np.float64)
     return None
+
+
+LEAF_COLUMNS = {
+    "leaves.strict_f1": "F1",
+    "leaves.strict_precision": "P",
+    "leaves.strict_recall": "R",
+    "leaves.count_pred": "leaves",
+    "leaves.count_gt": "GT leaves",
+    "leaves.accuracy": "count acc.",
+    "leaves.shape_error": "shape err.",
+    "leaves.normal_error_deg": "normal err. (deg)",
+}
+"""The leaves report's columns: strict detection, counts, matched leaves' shape and orientation."""
+
+
+def leaf_rows(rows: list[tuple[str, str | Path, str]]):
+    """One row per (configuration, case): ``rows`` lists (label, run folder, method); the run's values of
+    :data:`LEAF_COLUMNS` for that method. Returns a DataFrame: config, species, case and one column per metric."""
+    import pandas as pd
+
+    from plantbench.report.gate import read_results
+
+    out = []
+    for label, run_dir, method in rows:
+        table = read_results(run_dir)
+        table = table[(table["method"] == method) & table["metric"].isin(list(LEAF_COLUMNS))]
+        wide = table.pivot_table(index=["species", "case"], columns="metric", values="value", aggfunc="first")
+        for (species, case), values in wide.iterrows():
+            out.append({"config": label, "species": species, "case": case,
+                        **{LEAF_COLUMNS[m]: values.get(m) for m in LEAF_COLUMNS}})
+    return pd.DataFrame(out)
+
+
+def depth_rows(cache: str | Path):
+    """Per case of a run cache whose points jobs link the mvs stage's depth maps (``cache/points/*/depth``): the
+    capture's leaf sizes (capture.json ``leaf_pixels``) and :func:`leaf_depth_accuracy` of the mvs depth."""
+    import json
+
+    import pandas as pd
+
+    out = []
+    for folder in sorted(Path(cache, "points").iterdir()):
+        views, depth = folder / "views", folder / "depth"
+        if not (views.is_dir() and depth.is_dir()):
+            continue
+        capture = views.resolve().parent
+        doc = json.loads((capture / "views" / "capture.json").read_text())
+        acc = leaf_depth_accuracy(capture, depth.resolve())
+        px = doc.get("leaf_pixels") or {}
+        out.append({"species": doc["plant"]["species"], "height_m": doc["plant"]["height"],
+                    "leaf px (median)": px.get("median_px"), "leaves >= 200 px in 2 views":
+                    f"{px.get('resolved_2_views')} / {px.get('leaves')}",
+                    "leaf px with depth": acc["kept"], "within 1 % H": acc["within"],
+                    "within 1 % H, of those with depth": acc["within_of_kept"]})
+    return pd.DataFrame(out).drop_duplicates("species")
