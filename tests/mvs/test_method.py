@@ -157,4 +157,3 @@ def test_plant_points_keep_leaves_when_the_budget_barely_binds():
     nearest = np.linalg.norm(centres[:, None, :] - out[None], axis=2).min(1)
     assert np.all(nearest < 0.01)  # every leaf survives
     assert np.mean(out[:, 2] < 0.02) < 0.01  # the ground is gone
-
