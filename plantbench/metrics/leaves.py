@@ -19,12 +19,14 @@
   One ground-truth leaf: its spacing is its own length.
 * Shape of matched leaves (:func:`leaf_shape_errors`, on the strict matching's pairs): the shape error is the
   symmetric mean surface distance between the fitted and the true blade, over the true blade's length (each blade
-  tessellated from its Bezier parameters; the mean over one blade's area of the exact point-to-triangle distance to
+  tessellated from its Bezier parameters, or the flat rectangle of a ``quad`` leaf; the mean over one blade's area of the exact point-to-triangle distance to
   the other, the two directions averaged); the orientation error is the angle between the blade normals (the leaf
   frames' +z), unsigned (0-90 degrees: a blade seen as a plane has no upper side).
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
@@ -96,10 +98,23 @@ SHAPE_RESOLUTION = (8, 16)
 """Tessellation of each blade for :func:`leaf_shape_errors` (segments across each half, along the blade)."""
 
 
+_BEZIER_FIELDS = frozenset(f.name for f in dataclasses.fields(BezierLeaf))
+
+
 def _blade(leaf: Leaf) -> TriMesh:
-    """The leaf's blade in world coordinates, tessellated from its Bezier parameters."""
-    omega = BezierLeaf(**leaf.params).vector()
+    """The leaf's blade in world coordinates: tessellated from its Bezier parameters, or, for a flat quad leaf
+    (``params["model"] == "quad"``, the baselines' leaf clusters), the rectangle [0, length] x [-width/2, width/2]
+    of its frame, as a grid of the same resolution."""
     t = np.asarray(leaf.transform, np.float64)
+    if leaf.params.get("model") == "quad":
+        nu, nv = 2 * SHAPE_RESOLUTION[0], SHAPE_RESOLUTION[1]
+        x, y = np.meshgrid(np.linspace(0, leaf.length, nv + 1), np.linspace(-leaf.width / 2, leaf.width / 2, nu + 1))
+        local = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+        i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
+        a = (i * (nv + 1) + j).ravel()
+        faces = np.concatenate([np.column_stack([a, a + 1, a + nv + 2]), np.column_stack([a, a + nv + 2, a + nv + 1])])
+        return TriMesh(local @ t[:3, :3].T + t[:3, 3], faces)
+    omega = BezierLeaf(**{k: v for k, v in leaf.params.items() if k in _BEZIER_FIELDS}).vector()
     verts, faces = tessellate_placed(omega[None], np.array([leaf.length]), t[None, :3, :3], t[None, :3, 3],
                                      SHAPE_RESOLUTION)
     return TriMesh(verts[0], faces)

@@ -93,6 +93,21 @@ def test_leaf_shape_errors_analytic_cases():
     assert shape[3] == pytest.approx(np.sin(np.radians(30)) * mean_abs_y, rel=0.03)
 
 
+def test_leaf_shape_errors_of_quad_leaves():
+    """The baselines' flat quad leaves (params model 'quad', no Bezier fields): a 20 x 6 cm rectangle against itself
+    (0) and against itself lifted 1 cm (0.01 / 0.2 = 0.05); a quad against a Bezier blade of the same frame: its
+    area-weighted distance is positive (the rectangle's corners stick out of the blade's outline)."""
+    base = np.eye(4)
+    lifted = base.copy()
+    lifted[2, 3] = 0.01
+    quad = Leaf(0, 3, base, {"model": "quad", "leaves": 2}, 0.2, 0.06)
+    up = Leaf(1, 3, lifted, {"model": "quad", "leaves": 2}, 0.2, 0.06)
+    shape, angle = leaf_shape_errors([quad, quad, _flat_leaf(base)], [quad, up, quad],
+                                     np.array([[0, 0], [1, 1], [2, 2]]))
+    assert shape[0] == pytest.approx(0, abs=1e-6) and shape[1] == pytest.approx(0.05, rel=1e-4)
+    assert shape[2] > 0.005 and np.allclose(angle, 0, atol=1e-6)
+
+
 def test_leaf_matches_pairs_are_within_radius_and_one_to_one(rng):
     gt = rng.random((50, 3))
     pred = gt[rng.permutation(50)[:35]] + rng.normal(0, 0.01, (35, 3))
