@@ -122,10 +122,12 @@ def _blade(leaf: Leaf) -> TriMesh:
 
 def _mean_distance(source: TriMesh, target: TriMesh) -> float:
     """Area-weighted mean over ``source``'s triangles of the exact distance from each triangle's centroid to
-    ``target``."""
+    ``target`` (a blade without area: the mean over its vertices)."""
     from plantbench.metrics.surface import point_to_mesh_distances
 
     area = source.face_areas()
+    if not area.sum() > 0:  # a degenerate blade (no width or no length): the mean over its vertices
+        return float(point_to_mesh_distances(target, source.vertices).mean())
     centroid = source.vertices[source.faces].mean(axis=1)
     keep = area > 0
     return float(np.average(point_to_mesh_distances(target, centroid[keep]), weights=area[keep]))

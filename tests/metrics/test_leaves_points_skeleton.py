@@ -106,6 +106,10 @@ def test_leaf_shape_errors_of_quad_leaves():
                                      np.array([[0, 0], [1, 1], [2, 2]]))
     assert shape[0] == pytest.approx(0, abs=1e-6) and shape[1] == pytest.approx(0.05, rel=1e-4)
     assert shape[2] > 0.005 and np.allclose(angle, 0, atol=1e-6)
+    # a blade without width (a degenerate quad): its vertices' mean distance, the midline 0 from the rectangle
+    line = Leaf(2, 3, lifted, {"model": "quad", "leaves": 1}, 0.2, 0.0)
+    shape, _ = leaf_shape_errors([quad], [line], np.array([[0, 0]]))
+    assert np.isfinite(shape[0]) and shape[0] > 0.01 / 0.2 / 2
 
 
 def test_leaf_matches_pairs_are_within_radius_and_one_to_one(rng):
