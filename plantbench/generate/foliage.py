@@ -5,7 +5,8 @@ twig in a spiral (one leaf per node, rolling by the divergence angle), opposite-
 turning by 90 degrees) or in whorls (n per node, alternate whorls offset by half the gap). The petiole leaves the
 bark at the insertion angle; the blade turns from the petiole direction towards the horizontal (``droop``), its
 upper side facing up, rolled by a random angle. Every leaf varies in length (log-normal), width (log-normal scale
-of the silhouette offsets) and bend/fold/curl (normal jitter of the out-of-plane parameters).
+of the silhouette offsets) and bend/fold/curl (normal jitter of the out-of-plane parameters). With
+``random_phase`` the whole phyllotaxis turns by one random azimuth per plant.
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ class FoliageParams:
     width_sd: float = 0.08
     shape_jitter: float = 0.03
     roll_sd: float = 15.0
+    random_phase: bool = False
     resolution: tuple[int, int] = (3, 6)
 
 
@@ -83,6 +85,7 @@ def foliage_params(spec: SpaceColonisationSpecies | WeberPennSpecies) -> Foliage
         width_sd=lv.width_sd,
         shape_jitter=lv.shape_jitter,
         roll_sd=lv.roll_sd,
+        random_phase=lv.random_phase,
         resolution=tuple(lv.resolution),
     )
 
@@ -224,6 +227,8 @@ def place_leaves(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, 
         return Foliage([], TriMesh.empty(), np.zeros(0, np.int64))
     node_of = np.repeat(nodes, per)
     az = az.ravel() + rng.normal(0.0, np.radians(10.0), m)
+    if p.random_phase:  # drawn after the default draws: species without it keep their plants
+        az = az + rng.uniform(0.0, 2 * np.pi)
     pet, radial, pet_start, base = _petioles(positions, radii, tangent, normal, node_of, az, p, rng)
     rot = _blade_frames(pet, radial, p, rng)
     omega, lengths = _blade_shapes(p, m, per, length_factor, rng)

@@ -151,6 +151,9 @@ class Leaves(Strict):
     width_sd: float = Field(default=0.08, ge=0, le=1, description="log-normal spread of blade width")
     shape_jitter: float = Field(default=0.03, ge=0, le=0.3, description="sd of the bend/fold/curl parameters")
     roll_sd: float = Field(default=15, ge=0, le=90, description="sd of the blade roll about its axis, degrees")
+    random_phase: bool = Field(default=False, description="the phyllotaxis starts at a random azimuth, one per plant "
+                               "(a single-stemmed plant whose leaves would otherwise stand at the same azimuths in "
+                               "every seed: a pot stands at any angle to the cameras)")
     resolution: tuple[Annotated[int, Field(ge=1, le=32)], Annotated[int, Field(ge=2, le=64)]] = Field(default=(3, 6), description="tessellation (segments across each half, along)")
     shape: LeafShape = Field(default_factory=LeafShape,
                              description="mean Bezier leaf (Chaurasia and Beardsley 2017, 21 parameters)")

@@ -308,3 +308,36 @@ def test_missing_level_between_levels_is_an_error():
             "level2": {"branches": 3, "length": 0.3, "down_angle": 40},
             "leaves": {"arrangement": "spiral", "length": 0.05, "per_stem": 4},
         })
+
+
+
+def test_random_phase_turns_the_phyllotaxis_per_plant_only_where_asked(tmp_path, monkeypatch):
+    """wp_rubber_plant (random_phase = true): the azimuth of its lowest leaf about the stem differs between seeds by
+    more than the 10-degree jitter; the same file without the flag grows the same stem with the leaves at other
+    azimuths (the phase is one draw after the others: the stem, and every species without the flag, is unchanged)."""
+    from plantbench.generate import grow_species
+    from plantbench.paths import species_dir
+    from plantbench.species import species
+
+    def lowest_azimuth(plant) -> float:
+        c = min(plant.leaves, key=lambda lf: lf.centroid[2]).centroid
+        return float(np.degrees(np.arctan2(c[1], c[0])))
+
+    az = [lowest_azimuth(grow_species("wp_rubber_plant", s)[0]) for s in (1, 2, 3)]
+    assert max(abs((a - b + 180) % 360 - 180) for a in az for b in az) > 30
+    on, _ = grow_species("wp_rubber_plant", 1)
+    text = (species_dir() / "wp_rubber_plant.toml").read_text()
+    assert "random_phase = true" in text
+    folder = tmp_path / "scenes" / "species"
+    folder.mkdir(parents=True)
+    (folder / "wp_rubber_plant.toml").write_text(text.replace("random_phase = true\n", ""))
+    monkeypatch.setenv("PLANTBENCH_SCENES", str(tmp_path / "scenes"))
+    species.reset()
+    try:
+        off, _ = grow_species("wp_rubber_plant", 1)
+    finally:
+        monkeypatch.undo()
+        species.reset()
+    np.testing.assert_array_equal(off.skeleton.positions, on.skeleton.positions)
+    assert len(off.leaves) == len(on.leaves)
+    assert not np.allclose([lf.centroid for lf in off.leaves], [lf.centroid for lf in on.leaves])
