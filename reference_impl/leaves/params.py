@@ -68,6 +68,10 @@ class LeafParams:
     min_width_fraction: float = 0.5
     """A fitted blade whose width is less than this fraction of the template's width-to-length ratio times its
     length is a twig or a sliver: skipped as ``not_leaf_shaped``. [S]"""
+    max_length_factor: float = 2.0
+    """A fitted blade longer than this many leaf lengths (the species hint, or the length estimated from the data)
+    is conjoined leaves or background, skipped as ``not_leaf_shaped`` (the generator's leaves vary log-normally
+    with sd 0.12-0.15: twice the mean is over 4 sd out). [S]"""
     duplicate_fraction: float = 0.5
     """A candidate whose points were already claimed by earlier leaves in this proportion is a duplicate."""
     overlap_fraction: float = 0.8

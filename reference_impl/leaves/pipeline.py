@@ -21,8 +21,8 @@ Documented skips (counted in :attr:`LeafFitResult.skipped`):
 - ``duplicate``: a candidate already claimed by a leaf extracted from another view (section 4.2), or a fitted blade
   whose points lie on a larger fitted blade (:func:`_drop_overlapping`);
 - ``few_points_after_icp``: too few unclaimed points near the ICP-placed template;
-- ``not_leaf_shaped``: a fitted blade narrower than ``min_width_fraction`` of the template's width-to-length ratio:
-  a twig or a sliver (the paper ignores branches and twigs, section 1; a stem seen from the side is planar within
+- ``not_leaf_shaped``: a fitted blade narrower than ``min_width_fraction`` of the template's width-to-length ratio
+  (a twig or a sliver), or longer than ``max_length_factor`` x the leaf length (conjoined leaves and background) (the paper ignores branches and twigs, section 1; a stem seen from the side is planar within
   delta_plane too, and the template ICP lays the ellipse along it). [S]
 - ``fit_failed``: the Bezier fit raised (too few mapped points).
 """
@@ -242,7 +242,8 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
 
     t0 = time.perf_counter()
     leaves, fits, leaf_pts = _fit(points, groups, params=params, rng=seeded_rng(seed, "leaves", "fit"), up=up,
-                                  skipped=skipped, min_width_ratio=params.min_width_fraction / ratio)
+                                  skipped=skipped, min_width_ratio=params.min_width_fraction / ratio,
+                                  max_length=params.max_length_factor * length)
     leaves, fits, leaf_pts = _drop_overlapping(leaves, fits, leaf_pts, radius=params.capture_distance * delta,
                                                fraction=params.overlap_fraction, skipped=skipped)
     timings["fit"] = time.perf_counter() - t0
@@ -355,17 +356,18 @@ def _segment_candidates(images, depths, cameras, *, length: float, estimate: boo
 
 
 def _fit(points: np.ndarray, groups: list[np.ndarray], *, params: LeafParams, rng: np.random.Generator, up,
-         skipped: dict[str, int], min_width_ratio: float = 0.0) -> tuple[list[Leaf], list[LeafFit], list[np.ndarray]]:
+         skipped: dict[str, int], min_width_ratio: float = 0.0, max_length: float = np.inf
+         ) -> tuple[list[Leaf], list[LeafFit], list[np.ndarray]]:
     """The Bezier leaf fitted to each group of ``points``: the Leaf instances (ids in order), their fits and points;
     the groups whose fit failed are counted in ``skipped``, the blades narrower than ``min_width_ratio`` x their
-    length as ``not_leaf_shaped``."""
+    length or longer than ``max_length`` as ``not_leaf_shaped``."""
     fits_or_skips = fit_leaves([points[g] for g in groups], params=params, rng=rng, up=up)
     leaves, fits, leaf_pts = [], [], []
     for g, f in zip(groups, fits_or_skips, strict=True):
         if isinstance(f, str):
             skipped["candidate_few_points" if f == "few_points" else f] += 1
             continue
-        if f.width < min_width_ratio * f.length:
+        if f.width < min_width_ratio * f.length or f.length > max_length:
             skipped["not_leaf_shaped"] += 1
             continue
         leaves.append(Leaf(len(leaves), -1, f.transform, BezierLeaf.from_vector(f.omega).to_dict(), f.length, f.width))

@@ -257,3 +257,15 @@ def test_a_fragment_lying_on_a_larger_fitted_blade_is_a_duplicate():
     _drop_overlapping(leaves, [small, big, other], [frag + [0, 0, 0.02], pts, other.surface(9, 17)], radius=0.01,
                       fraction=0.8, skipped=skipped)
     assert skipped["duplicate"] == 0  # 2.5 cm above the blade: another leaf
+
+
+def test_blades_longer_than_the_length_factor_are_not_leaves(leaf_scene):
+    """The scene's leaves are 10 cm long: with the hint at 10 cm, a length limit of 1.5 leaf lengths keeps all six;
+    at 0.5 (5 cm) each fitted blade is too long and skipped as not_leaf_shaped."""
+    views, depths, _, truth = leaf_scene
+    keep = segment_and_fit(views, depths, leaf_length_hint=0.1, seed=0,
+                           params=LeafParams(ground=False, max_length_factor=1.5))
+    assert len(keep.leaves) == len(truth) and keep.skipped["not_leaf_shaped"] == 0
+    drop = segment_and_fit(views, depths, leaf_length_hint=0.1, seed=0,
+                           params=LeafParams(ground=False, max_length_factor=0.5))
+    assert len(drop.leaves) == 0 and drop.skipped["not_leaf_shaped"] >= len(truth)
