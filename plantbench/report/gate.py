@@ -170,7 +170,9 @@ def compare(table, baseline: Baseline, tolerances: Tolerances | None = None):
         else:
             delta = value - e.value
             bad_move = -delta if e.higher_is_better else delta
-            regressed = bad_move > tolerance
+            # a relative 1e-9 of slack: a tolerance set by a study run's own change (max_change) must pass that run,
+            # whose value the study and the baseline round differently in the last bits
+            regressed = bad_move > tolerance * (1 + 1e-9) + 1e-12
         rows.append({"method": e.method, "case": e.case, "metric": e.metric, "baseline": e.value, "value": value,
                      "delta": delta, "tolerance": tolerance, "source": source,
                      "higher_is_better": e.higher_is_better, "regressed": bool(regressed)})
