@@ -21,9 +21,10 @@ Documented skips (counted in :attr:`LeafFitResult.skipped`):
 - ``duplicate``: a candidate already claimed by a leaf extracted from another view (section 4.2), or a fitted blade
   whose points lie on a larger fitted blade (:func:`_drop_overlapping`);
 - ``few_points_after_icp``: too few unclaimed points near the ICP-placed template;
-- ``not_leaf_shaped``: a fitted blade narrower than ``min_width_fraction`` of the template's width-to-length ratio
-  (a twig or a sliver), or longer than ``max_length_factor`` x the leaf length (conjoined leaves and background) (the paper ignores branches and twigs, section 1; a stem seen from the side is planar within
-  delta_plane too, and the template ICP lays the ellipse along it). [S]
+- ``not_leaf_shaped`` [S]: a fitted blade narrower than ``min_width_fraction`` of the template's width-to-length
+  ratio (a twig or a sliver: the paper ignores branches and twigs, section 1, but a stem seen from the side is
+  planar within delta_plane too, and the template ICP lays the ellipse along it), or longer than
+  ``max_length_factor`` x the leaf length (conjoined leaves and background).
 - ``fit_failed``: the Bezier fit raised (too few mapped points).
 """
 
