@@ -385,17 +385,27 @@ def _drop_overlapping(leaves: list[Leaf], fits: list[LeafFit], leaf_pts: list[np
     not reach is caught by the fitted, whole blade) and is dropped as ``duplicate``. Ids are renumbered in order."""
     from scipy.spatial import cKDTree
 
+    def ball(points: np.ndarray) -> tuple[np.ndarray, float]:
+        centre = points.mean(axis=0)
+        return centre, float(np.sqrt(((points - centre) ** 2).sum(axis=1).max()))
+
     order = np.argsort([-f.length * f.width for f in fits], kind="stable")
     kept: list[int] = []
     surfaces: list[np.ndarray] = []
+    balls: list[tuple[np.ndarray, float]] = []
     for k in order:
-        if surfaces:
-            near = cKDTree(np.concatenate(surfaces)).query(leaf_pts[k], distance_upper_bound=radius)[0] <= radius
+        # only the kept blades whose bounding balls come within radius of this leaf's can hold a point near it
+        c, r = ball(leaf_pts[k])
+        close = [j for j, (cj, rj) in enumerate(balls) if np.linalg.norm(cj - c) <= r + rj + radius]
+        if close:
+            tree = cKDTree(np.concatenate([surfaces[j] for j in close]))
+            near = tree.query(leaf_pts[k], distance_upper_bound=radius)[0] <= radius
             if near.mean() >= fraction:
                 skipped["duplicate"] += 1
                 continue
         kept.append(int(k))
         surfaces.append(fits[k].surface(17, 33))
+        balls.append(ball(surfaces[-1]))
     kept.sort()
     out = [Leaf(i, -1, leaves[k].transform, leaves[k].params, leaves[k].length, leaves[k].width)
            for i, k in enumerate(kept)]
