@@ -26,7 +26,7 @@ from .fusion import fuse_views, voxel_downsample
 from .ground import plant_mask
 from .neighbours import depth_range, scene_centre, scene_scale, select_neighbours
 from .params import MVSParams
-from .patchmatch import DepthMap, estimate_depth, to_gray
+from .patchmatch import DepthMap, estimate_depth, refine_geometric, to_gray
 
 __all__ = ["MVS", "load_views", "depth_maps", "filter_depth_maps", "reconstruct_points"]
 
@@ -95,7 +95,21 @@ def depth_maps(
 
     # views are independent (each has its own random stream), so they run on the job's threads with the same result
     results = thread_map(one, range(len(cameras)))
-    return [r[0] for r in results], nb, [r[1] for r in results]
+    maps, seconds = [r[0] for r in results], [r[1] for r in results]
+    if p.depth_params.geometric_iterations > 0:
+        def geometric(i: int) -> tuple[DepthMap, float]:
+            t0 = time.perf_counter()
+            rng_range = depth_range(cameras[i], centre, p.depth_params.depth_margin)
+            depth = refine_geometric(images[i], [images[j] for j in nb[i]], cameras[i], [cameras[j] for j in nb[i]],
+                                     maps[i], [maps[j].planes[0] for j in nb[i]], rng_range, p.depth_params,
+                                     rng=seeded_rng(seed, "mvs", "geometric", i))
+            return depth, time.perf_counter() - t0
+
+        # every view reads the photometric maps of its sources: the pass starts once all of them exist
+        results = thread_map(geometric, range(len(cameras)))
+        maps = [r[0] for r in results]
+        seconds = [s + r[1] for s, r in zip(seconds, results, strict=True)]
+    return maps, nb, seconds
 
 
 def filter_depth_maps(

@@ -67,6 +67,22 @@ class DepthParams:
     """PatchMatch window half-size in samples; the window spans (2 r + 1)^2 samples ``pm_step`` pixels apart."""
     pm_step: int = 1
     """Pixel spacing of the PatchMatch window samples (2 with r = 1: a sparse 3 x 3 sampling of a 5 x 5 footprint)."""
+    propagation: str = "four"
+    """PatchMatch propagation: 'four' (each pixel tries the planes of its 4 adjacent pixels, so a plane travels
+    about one pixel per half-sweep) or 'adaptive' (the adaptive checkerboard sampling of ACMH, Xu and Tao 2019:
+    from each of 4 V-shaped near regions of 7 samples and 4 long strips of 11 samples reaching 23 pixels, the
+    sample of lowest current cost, 8 candidates that carry a plane across a weakly textured surface in one
+    iteration)."""
+    geometric_iterations: int = 0
+    """Geometric-consistency pass (ACMM, Xu and Tao 2019, section 3.3): once every view has its photometric depth,
+    this many more full-resolution PatchMatch iterations per view in which each source's cost gains
+    ``geometric_weight`` x min(forward-backward reprojection error through the source's depth map,
+    ``geometric_max_px``). The term only guides the choice of planes; a pixel is kept on its photometric cost as
+    before. 0: off."""
+    geometric_weight: float = 0.2
+    """ACMM's weight of the reprojection error (pixels) against the photometric cost (1 - ZNCC)."""
+    geometric_max_px: float = 3.0
+    """ACMM's truncation of the reprojection error, pixels."""
     pm_checker: bool = False
     """Use the checkerboard window (see ``coarse_checker``) at full resolution too."""
     pm_textured_only: bool = False

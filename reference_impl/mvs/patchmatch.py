@@ -21,6 +21,10 @@ by photo-consistency. We do it in two stages:
    resolution, where the fresh random candidate is a random depth instead of a random normal (surfaces smaller
    than a coarse pixel are in no coarse plane). Both levels evaluate the checkerboard half of the window (Gipuma).
    Measured in ``docs/tuning/mvs.md``.
+4. **Options of ACMM** (Xu and Tao 2019), off by default: the adaptive checkerboard propagation (``propagation``:
+   each pixel takes the lowest-cost plane of each of 8 regions reaching 23 pixels, :func:`propagation_regions`, so
+   planes cross weakly textured surfaces) and the geometric-consistency pass (:func:`refine_geometric`: once every
+   view has its depth, more iterations whose cost adds the reprojection error through the sources' depth maps).
 
 The graph-cut global optimisation of the seed (Eq. 4) is replaced by this local PatchMatch plus the multi-view
 consistency filter of :mod:`.filtering` (see the module notes there). All pixels are processed at once as Dr.Jit
@@ -40,7 +44,7 @@ from plantbench.errors import InputError
 
 from .params import DepthParams
 
-__all__ = ["DepthMap", "estimate_depth", "to_gray", "sweep_depths"]
+__all__ = ["DepthMap", "estimate_depth", "to_gray", "sweep_depths", "propagation_regions", "refine_geometric"]
 
 
 @dataclass(frozen=True)
@@ -50,11 +54,14 @@ class DepthMap:
     depth : (h, w) float32, z-depth in the view's camera frame; NaN where no depth was kept
     normal : (h, w, 3) float32, unit normal in world coordinates (facing the camera); NaN where no depth
     cost : (h, w) float32, final matching cost (1 - ZNCC, mean of the best sources), 2 where unmatched
+    planes : the raw planes of every pixel, kept or not: (h, w) float32 depth and (h, w, 3) float32 camera-frame
+        normal (what the geometric-consistency pass starts from and checks against); None for the sweep alone
     """
 
     depth: np.ndarray
     normal: np.ndarray
     cost: np.ndarray
+    planes: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
@@ -231,6 +238,23 @@ class _Engine:
         # plane-induced homographies H_j = A_j + b_j c^T: A_j = K_j R_j K^-1, b_j = K_j t_j (see _plane_cost)
         self.hom_l = [(_Mat(c.K @ r @ self.kinv, self._opaque).v, _Mat(c.K @ t, self._opaque).v[0])
                       for c, (r, t) in zip(src_cams, self.rel)]
+        self.geo = None  # set_geometry: the sources' depth maps for the geometric-consistency term
+
+    def set_geometry(self, src_depths: list[np.ndarray] | None) -> None:
+        """Add (or with None remove) the geometric-consistency term of :meth:`_plane_cost`: each source's (h', w')
+        z-depth map (non-finite: no depth, the error's maximum) and the terms of the backward projection: a source
+        pixel (u, v) with depth D maps to the reference pixel of ``D M_j (u, v, 1) - m_j`` with
+        ``M_j = K R_j^T K_j^-1`` and ``m_j = K R_j^T t_j`` (R_j, t_j: reference to source)."""
+        if src_depths is None:
+            self.geo = None
+            return
+        jl = self.jl
+        K = self.ref_cam.K
+        self.geo = []
+        for dep, cam, (r, t) in zip(src_depths, self.src_cams, self.rel, strict=True):
+            d = np.where(np.isfinite(dep) & (dep > 0), dep, 0.0).astype(np.float32)
+            m_mat = K @ r.T @ np.linalg.inv(cam.K)
+            self.geo.append((jl.Float(d.ravel()), _Mat(m_mat, self._opaque).v, _Mat(K @ r.T @ t, self._opaque).v[0]))
 
     # ------------------------------------------------------------------------------------------ helpers
     def _opaque(self, value):
@@ -431,6 +455,7 @@ class _Engine:
         sss = [0.0] * ns
         srs = [0.0] * ns
         inside_all = [None] * ns
+        geo_err = [None] * ns
         # one source at a time: its homography terms and sums
         for j in range(ns):
             for k, (ox, oy) in enumerate(self._offsets()):
@@ -443,6 +468,8 @@ class _Engine:
                     u, v = hx * iz, hy * iz
                     sw_, sh_ = self.src_size[j]
                     inside_all[j] = (hz > 0) & (u >= -0.5) & (u <= sw_ - 0.5) & (v >= -0.5) & (v <= sh_ - 0.5)
+                    if self.geo is not None:
+                        geo_err[j] = self._reprojection_error(j, u, v, x, y, inside_all[j])
                 t = wn * val
                 ss[j] = ss[j] + t
                 sss[j] = dr.fma(t, val, sss[j])
@@ -455,8 +482,28 @@ class _Engine:
             sc = self.src_scale[j]
             vs = dr.maximum(sss[j] - ss[j] * ss[j], 0.0) * (sc * sc)
             zncc = srs[j] * sc / dr.sqrt(vr * vs + 1e-8)
-            costs.append(dr.select(inside_all[j] & dr.isfinite(zncc), 1.0 - zncc, 2.0))
+            cost = dr.select(inside_all[j] & dr.isfinite(zncc), 1.0 - zncc, 2.0)
+            if geo_err[j] is not None:
+                cost = dr.fma(geo_err[j], float(p.geometric_weight), cost)
+            costs.append(cost)
         return _top_k_mean(dr, costs, p.top_k)
+
+    def _reprojection_error(self, j: int, u, v, x, y, inside):
+        """ACMM's forward-backward reprojection error, truncated at ``geometric_max_px``: the pixel (``x``, ``y``)
+        with its plane's point seen at (``u``, ``v``) in source j, that source's depth at the nearest pixel taken
+        back into the reference view."""
+        dr, jl = self.dr, self.jl
+        dep, m, off = self.geo[j]
+        sw_, sh_ = self.src_size[j]
+        ui = dr.clip(jl.Int32(dr.round(u)), 0, sw_ - 1)
+        vi = dr.clip(jl.Int32(dr.round(v)), 0, sh_ - 1)
+        dd = dr.gather(jl.Float, dep, jl.UInt32(ui + vi * sw_))
+        uf, vf = jl.Float(ui), jl.Float(vi)
+        q = [dd * (m[i][0] * uf + m[i][1] * vf + m[i][2]) - off[i] for i in range(3)]
+        ex, ey = q[0] / q[2] - x, q[1] / q[2] - y
+        err = dr.sqrt(ex * ex + ey * ey)
+        cap = float(self.p.geometric_max_px)
+        return dr.select(inside & (dd > 0) & (q[2] > 0) & dr.isfinite(err), dr.minimum(err, cap), cap)
 
     def patchmatch(self, depth0: np.ndarray, normal0: np.ndarray, near: float, far: float, rng: np.random.Generator,
                    active: np.ndarray | None = None, iterations: int | None = None, random_depth: bool = False):
@@ -467,7 +514,7 @@ class _Engine:
         depth over the whole range with the pixel's normal (PatchMatch's random initialisation) instead of a random
         normal at its depth: how the fine level of coarse to fine finds surfaces smaller than a coarse pixel, which no
         coarse plane holds."""
-        dr, jl, p = self.dr, self.jl, self.p
+        jl, p = self.jl, self.p
         w, h, n = self.w, self.h, self.n
         d = jl.Float(depth0.ravel().astype(np.float32))
         n0 = normal0.reshape(-1, 3).astype(np.float32)
@@ -476,16 +523,37 @@ class _Engine:
         yy, xx = np.divmod(np.arange(n), w)
         colours = [jl.UInt32(np.flatnonzero(act & ((xx + yy) % 2 == c)).astype(np.uint32)) for c in (0, 1)]
         windows = [self._window(pidx) for pidx in colours]
-        cost = dr.full(jl.Float, 2.0, n)
-        for pidx, win in zip(colours, windows):  # the starting planes' costs
-            dr.scatter(cost, self._plane_cost(win, *(dr.gather(jl.Float, a, pidx) for a in (d, nx, ny, nz))), pidx)
-        dr.eval(cost)
+        cost = self._costs(colours, windows, (d, nx, ny, nz))  # the starting planes' costs
         planes = (d, nx, ny, nz, cost)
         for it in range(p.pm_iterations if iterations is None else iterations):
             for pidx, win in zip(colours, windows):
                 self._half_sweep(planes, pidx, win, near, far, rng, 0.5**it, random_depth)
         out = [np.asarray(a, np.float32).reshape(h, w) for a in planes]
         return out[0], np.stack(out[1:4], axis=-1), out[4]
+
+    def _costs(self, colours: list, windows: list, planes: tuple):
+        """The cost (:meth:`_plane_cost`) of ``planes`` (Dr.Jit depth, normal x, y, z of every pixel) at the pixels
+        of ``colours`` (index arrays, with their :meth:`_window` in ``windows``); 2 elsewhere."""
+        dr, jl = self.dr, self.jl
+        cost = dr.full(jl.Float, 2.0, self.n)
+        for pidx, win in zip(colours, windows):
+            dr.scatter(cost, self._plane_cost(win, *(dr.gather(jl.Float, a, pidx) for a in planes)), pidx)
+        dr.eval(cost)
+        return cost
+
+    def photometric_cost(self, depth: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        """(h, w) float32 cost of the planes (``depth`` (h, w), camera-frame ``normal`` (h, w, 3)) without the
+        geometric term."""
+        jl = self.jl
+        geo, self.geo = self.geo, None
+        try:
+            n0 = normal.reshape(-1, 3).astype(np.float32)
+            planes = (jl.Float(depth.ravel().astype(np.float32)), *(jl.Float(n0[:, k]) for k in range(3)))
+            colours = [jl.UInt32(np.arange(self.n, dtype=np.uint32))]
+            cost = self._costs(colours, [self._window(c) for c in colours], planes)
+        finally:
+            self.geo = geo
+        return np.asarray(cost, np.float32).reshape(self.h, self.w)
 
     def _half_sweep(self, planes: tuple, pidx, win, near: float, far: float, rng: np.random.Generator, scale: float,
                     random_depth: bool) -> None:
@@ -510,19 +578,25 @@ class _Engine:
         dr.eval(*planes)
 
     def _neighbour_planes(self, planes: tuple, xi, yi, rx, ry) -> list[tuple]:
-        """Propagation: the planes of the four neighbours of pixels (``xi``, ``yi``) (rays ``rx``, ``ry``), each as
-        (depth along the pixel's own ray, normal x, y, z)."""
+        """Propagation: for each region of :func:`propagation_regions` the plane of its sample of lowest current cost,
+        as (depth along the pixel's own ray (``rx``, ``ry``), normal x, y, z), for pixels (``xi``, ``yi``)."""
         dr, jl = self.dr, self.jl
-        d, nx, ny, nz, _ = planes
+        d, nx, ny, nz, cost = planes
         w, h = self.w, self.h
         kinv = self.kinv_l
         cands = []
-        for ox, oy in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-            qx = dr.clip(xi + ox, 0, w - 1)
-            qy = dr.clip(yi + oy, 0, h - 1)
-            qi = jl.UInt32(qx + qy * w)
+        for region in propagation_regions(self.p.propagation):
+            qi = best = None
+            for ox, oy in region:
+                si = jl.UInt32(dr.clip(xi + ox, 0, w - 1) + dr.clip(yi + oy, 0, h - 1) * w)
+                if qi is None:
+                    qi, best = si, dr.gather(jl.Float, cost, si)
+                    continue
+                c = dr.gather(jl.Float, cost, si)
+                better = c < best
+                qi, best = dr.select(better, si, qi), dr.select(better, c, best)
             qd, qnx, qny, qnz = (dr.gather(jl.Float, a, qi) for a in (d, nx, ny, nz))
-            qxf, qyf = jl.Float(qx), jl.Float(qy)
+            qxf, qyf = jl.Float(qi % w), jl.Float(qi // w)
             qrx = kinv[0, 0] * qxf + kinv[0, 1] * qyf + kinv[0, 2]
             qry = kinv[1, 1] * qyf + kinv[1, 2]
             rho = qd * (qnx * qrx + qny * qry + qnz)
@@ -575,6 +649,30 @@ class _Engine:
             cc = dr.select(better, ccost, cc)
             dr.eval(cd, cnx, cny, cnz, cc)
         return cd, cnx, cny, cnz, cc
+
+
+def propagation_regions(kind: str) -> list[list[tuple[int, int]]]:
+    """Pixel offsets (dx, dy) of PatchMatch's propagation regions; each region gives its lowest-cost sample's plane.
+
+    'four': the 4 adjacent pixels, one per region. 'adaptive': the adaptive checkerboard sampling of ACMH (Xu and
+    Tao 2019, Fig. 2): per direction a V-shaped near region of 7 samples (one step ahead, then 2 samples in each of
+    the next 3 rows widening by one pixel) and a long strip of 11 samples (3, 5, ... 23 pixels ahead). Every offset
+    has an odd coordinate sum: it lies on the other colour of the red-black checkerboard.
+    """
+    if kind == "four":
+        return [[(-1, 0)], [(1, 0)], [(0, -1)], [(0, 1)]]
+    if kind != "adaptive":
+        raise InputError(f"propagation must be 'four' or 'adaptive', got {kind!r}")
+    # the "up" regions (dy < 0), then rotated by 90 degrees three times: (dx, dy) -> (-dy, dx)
+    near = [(0, -1)] + [(sx * i, -1 - i) for i in (1, 2, 3) for sx in (-1, 1)]
+    strip = [(0, -3 - 2 * i) for i in range(11)]
+    regions = []
+    for region in (near, strip):
+        r = region
+        for _ in range(4):
+            regions.append(r)
+            r = [(-dy, dx) for dx, dy in r]
+    return regions
 
 
 def _scaled_camera(cam: Camera, factor: int) -> Camera:
@@ -669,7 +767,45 @@ def estimate_depth(
         normal_cam = np.zeros(depth.shape + (3,), np.float32)
         normal_cam[..., 2] = -1.0
     keep = (cost < max_cost) & textured & np.isfinite(depth) & (depth > near) & (depth < far)
-    return _depth_map(depth, normal_cam, cost, keep, ref_cam)
+    return _depth_map(depth, normal_cam, cost, keep, ref_cam, planes=(depth, normal_cam) if refine else None)
+
+
+def refine_geometric(
+    ref_image: np.ndarray,
+    src_images: list[np.ndarray],
+    ref_cam: Camera,
+    src_cams: list[Camera],
+    start: DepthMap,
+    src_depths: list[np.ndarray],
+    depth_range: tuple[float, float],
+    params: DepthParams,
+    *,
+    rng: np.random.Generator,
+) -> DepthMap:
+    """ACMM's geometric-consistency pass (Xu and Tao 2019) for one view: ``params.geometric_iterations`` more
+    PatchMatch iterations at full resolution from the view's photometric planes (``start.planes``), with each
+    source's cost raised by its reprojection error through that source's raw depth map (``src_depths``, one per
+    source: the planes' depths of the photometric pass). A pixel is kept on its photometric cost, as in
+    :func:`estimate_depth`; the result's ``planes`` are the refined ones."""
+    p = params
+    if start.planes is None:
+        raise InputError("the geometric-consistency pass needs the photometric pass's planes (refine=True)")
+    ref = to_gray(ref_image)
+    srcs = [to_gray(s) for s in src_images]
+    near, far = float(depth_range[0]), float(depth_range[1])
+    _, std = _box_stats(ref, p.sweep_window)
+    textured = std >= p.min_texture
+    coarse = p.coarse_scale > 1 and min(ref.shape) // p.coarse_scale >= p.coarse_min_size
+    eng = _Engine(ref, srcs, ref_cam, src_cams, p, checker=coarse and p.coarse_checker)
+    eng.set_geometry(src_depths)
+    depth, normal_cam, _ = eng.patchmatch(start.planes[0].astype(np.float32), start.planes[1], near, far, rng,
+                                          active=textured if p.pm_textured_only else None,
+                                          iterations=p.geometric_iterations,
+                                          random_depth=coarse and p.fine_random_depth)
+    cost = eng.photometric_cost(depth, normal_cam)
+    max_cost = p.coarse_max_cost if coarse else p.max_cost
+    keep = (cost < max_cost) & textured & np.isfinite(depth) & (depth > near) & (depth < far)
+    return _depth_map(depth, normal_cam, cost, keep, ref_cam, planes=(depth, normal_cam))
 
 
 def _check_depth_inputs(src_images: list[np.ndarray], src_cams: list[Camera], p: DepthParams) -> None:
@@ -685,6 +821,7 @@ def _check_depth_inputs(src_images: list[np.ndarray], src_cams: list[Camera], p:
         raise InputError(f"coarse_scale must be an integer >= 1, got {p.coarse_scale!r}")
     if not (isinstance(p.coarse_min_size, int) and p.coarse_min_size >= 1):
         raise InputError(f"coarse_min_size must be an integer >= 1, got {p.coarse_min_size!r}")
+    propagation_regions(p.propagation)
 
 
 def _coarse_planes(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_cams: list[Camera],
@@ -709,10 +846,10 @@ def _coarse_planes(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src
     return depth, cost, normal_cam
 
 
-def _depth_map(depth: np.ndarray, normal_cam: np.ndarray, cost: np.ndarray, keep: np.ndarray, ref_cam: Camera
-               ) -> DepthMap:
+def _depth_map(depth: np.ndarray, normal_cam: np.ndarray, cost: np.ndarray, keep: np.ndarray, ref_cam: Camera,
+               planes: tuple[np.ndarray, np.ndarray] | None = None) -> DepthMap:
     """The DepthMap of the kept pixels: NaN depth and normal elsewhere, normals turned into world coordinates."""
     depth = np.where(keep, depth, np.nan).astype(np.float32)
     normal = (normal_cam.reshape(-1, 3) @ ref_cam.R).reshape(normal_cam.shape)  # camera -> world: R^T n
     normal = np.where(keep[..., None], normal, np.nan).astype(np.float32)
-    return DepthMap(depth, normal, np.where(np.isfinite(cost), cost, 2.0).astype(np.float32))
+    return DepthMap(depth, normal, np.where(np.isfinite(cost), cost, 2.0).astype(np.float32), planes)
