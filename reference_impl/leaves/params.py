@@ -72,12 +72,25 @@ class LeafParams:
     """A fitted blade longer than this many leaf lengths (the species hint, or the length estimated from the data)
     is conjoined leaves or background, skipped as ``not_leaf_shaped`` (the generator's leaves vary log-normally
     with sd 0.12-0.15: twice the mean is over 4 sd out). [S]"""
+    min_views: int = 1
+    """A leaf whose points come from fewer views is skipped as ``few_views`` [S] (1: off; the leaves suite uses 3:
+    on the rubber plant's mvs depth at 64 spp, 20 of its 34 false leaves had 21-77 points from 1-2 views, while
+    every true leaf had points from 21-36 of the 36 views)."""
     duplicate_fraction: float = 0.5
     """A candidate whose points were already claimed by earlier leaves in this proportion is a duplicate."""
     overlap_fraction: float = 0.8
     """After the fit, a blade whose points lie within ``capture_distance`` x delta_plane of a larger fitted blade in
     at least this proportion is a fragment of it, dropped as ``duplicate`` [S] (0.5 dropped real leaves beside
     conjoined blades on the rubber plant's mvs depth: recall 0.86 against 0.95 at 0.8)."""
+    fragment_fraction: float = 0.0
+    """After the fit, a blade whose points lie within delta_plane / 2 of a larger blade's plane in at least this
+    proportion, less than a leaf length from it and touching it, is a piece of the same leaf, dropped as
+    ``duplicate`` [S] (0: off; the leaves suite uses 0.95: on the rubber plant's mvs depth at 64 spp the 8 such
+    pieces had 0.97-1.00 of their points in the plane, the true leaves at most 0.87)."""
+    min_point_fraction: float = 0.0
+    """After the fit, a blade with fewer points than this fraction of the median blade's is skipped as
+    ``few_points_after_icp`` [S] (0: off; the leaves suite uses 0.02: on the fiddle-leaf fig's mvs depth at 64 spp,
+    15 false blades had 23-328 points, its true leaves over 13,000)."""
     # ---- section 5: fitting
     scanlines: int = 24
     """UV mapping: scanlines perpendicular to the axis, evenly spaced in v in [0, 1]."""
@@ -105,7 +118,7 @@ class LeafParams:
             value = getattr(self, f.name)
             if isinstance(value, bool | str):
                 continue
-            if f.name == "speckle_fraction" and value == 0:
+            if f.name in ("speckle_fraction", "fragment_fraction", "min_point_fraction") and value == 0:
                 continue
             if not isinstance(value, int | float) or value <= 0:
                 raise InputError(f"leaf parameter {f.name} must be a positive number, got {value!r}", field=f.name)
@@ -117,6 +130,10 @@ class LeafParams:
             raise InputError("overlap_fraction must lie in (0, 1]", field="overlap_fraction")
         if not 0 < self.duplicate_fraction <= 1:
             raise InputError("duplicate_fraction must lie in (0, 1]", field="duplicate_fraction")
+        if not 0 <= self.fragment_fraction <= 1:
+            raise InputError("fragment_fraction must lie in [0, 1]", field="fragment_fraction")
+        if not isinstance(self.min_views, int):
+            raise InputError(f"min_views must be an integer, got {self.min_views!r}", field="min_views")
 
     def scaled_delta(self, leaf_length: float) -> float:
         """delta_plane for leaves ``leaf_length`` metres long."""

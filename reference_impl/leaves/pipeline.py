@@ -18,13 +18,17 @@ Documented skips (counted in :attr:`LeafFitResult.skipped`):
 - ``superpixel_few_points`` / ``superpixel_no_plane``: superpixels dropped before the graph (section 4.1);
 - ``candidate_few_points``: a candidate leaf with fewer than ``min_candidate_points`` points;
 - ``degenerate_ellipse``: a candidate or extracted leaf whose points are collinear (no enclosing ellipse);
-- ``duplicate``: a candidate already claimed by a leaf extracted from another view (section 4.2), or a fitted blade
-  whose points lie on a larger fitted blade (:func:`_drop_overlapping`);
-- ``few_points_after_icp``: too few unclaimed points near the ICP-placed template;
+- ``duplicate``: a candidate already claimed by a leaf extracted from another view (section 4.2), a fitted blade
+  whose points lie on a larger fitted blade (:func:`_drop_overlapping`), or a piece of a larger blade's leaf: in
+  its plane and touching it (:func:`_drop_fragments`, with ``fragment_fraction``);
+- ``few_points_after_icp``: too few unclaimed points near the ICP-placed template, or [S] a fitted blade with fewer
+  than ``min_point_fraction`` of the median blade's points;
 - ``not_leaf_shaped`` [S]: a fitted blade narrower than ``min_width_fraction`` of the template's width-to-length
   ratio (a twig or a sliver: the paper ignores branches and twigs, section 1, but a stem seen from the side is
   planar within delta_plane too, and the template ICP lays the ellipse along it), or longer than
   ``max_length_factor`` x the leaf length (conjoined leaves and background).
+- ``few_views`` [S]: a leaf whose points come from fewer than ``min_views`` views (a surface that one or two views'
+  wrong depths agree on; a leaf the capture resolves is seen by many).
 - ``fit_failed``: the Bezier fit raised (too few mapped points).
 """
 
@@ -52,7 +56,7 @@ from .segment import Candidate, ViewSegments, backproject, candidate_confidence,
 __all__ = ["LeafFitResult", "segment_and_fit", "write_leaves", "load_depth_dir", "views_folder", "fitted_mesh"]
 
 SKIP_REASONS = ("view_without_depth", "superpixel_few_points", "superpixel_no_plane", "candidate_few_points",
-                "degenerate_ellipse", "duplicate", "few_points_after_icp", "not_leaf_shaped", "fit_failed")
+                "degenerate_ellipse", "duplicate", "few_points_after_icp", "not_leaf_shaped", "few_views", "fit_failed")
 
 
 @dataclass
@@ -241,12 +245,24 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
     skipped.update(sk_ref)
     stats["template_ratio"] = ratio
 
+    if params.min_views > 1:
+        groups = _seen_by_views(groups, segs, params.min_views, skipped)
     t0 = time.perf_counter()
     leaves, fits, leaf_pts = _fit(points, groups, params=params, rng=seeded_rng(seed, "leaves", "fit"), up=up,
                                   skipped=skipped, min_width_ratio=params.min_width_fraction / ratio,
                                   max_length=params.max_length_factor * length)
     leaves, fits, leaf_pts = _drop_overlapping(leaves, fits, leaf_pts, radius=params.capture_distance * delta,
                                                fraction=params.overlap_fraction, skipped=skipped)
+    if params.fragment_fraction > 0:
+        leaves, fits, leaf_pts = _drop_fragments(leaves, fits, leaf_pts, delta=delta, leaf_length=length,
+                                                 fraction=params.fragment_fraction, skipped=skipped)
+    if params.min_point_fraction > 0 and leaves:
+        keep = [len(p) >= params.min_point_fraction * np.median([len(q) for q in leaf_pts]) for p in leaf_pts]
+        skipped["few_points_after_icp"] += len(keep) - sum(keep)
+        leaves = [Leaf(i, -1, lf.transform, lf.params, lf.length, lf.width)
+                  for i, lf in enumerate(lf for lf, k in zip(leaves, keep, strict=True) if k)]
+        fits = [f for f, k in zip(fits, keep, strict=True) if k]
+        leaf_pts = [p for p, k in zip(leaf_pts, keep, strict=True) if k]
     timings["fit"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_all
     stats["timings"] = timings
@@ -356,6 +372,17 @@ def _segment_candidates(images, depths, cameras, *, length: float, estimate: boo
     return points, cands, length, delta, segs
 
 
+def _seen_by_views(groups: list[np.ndarray], segs: list[ViewSegments | None], min_views: int,
+                   skipped: dict[str, int]) -> list[np.ndarray]:
+    """The groups (indices into the scene points, which :func:`_candidates` concatenates view by view) whose points
+    come from at least ``min_views`` views; the others are counted as ``few_views``."""
+    view_of_point = np.concatenate([np.full(len(s.points), v) for v, s in enumerate(segs)
+                                    if s is not None and len(s.points)] or [np.zeros(0, int)])
+    kept = [g for g in groups if len(np.unique(view_of_point[g])) >= min_views]
+    skipped["few_views"] += len(groups) - len(kept)
+    return kept
+
+
 def _fit(points: np.ndarray, groups: list[np.ndarray], *, params: LeafParams, rng: np.random.Generator, up,
          skipped: dict[str, int], min_width_ratio: float = 0.0, max_length: float = np.inf
          ) -> tuple[list[Leaf], list[LeafFit], list[np.ndarray]]:
@@ -406,6 +433,46 @@ def _drop_overlapping(leaves: list[Leaf], fits: list[LeafFit], leaf_pts: list[np
         kept.append(int(k))
         surfaces.append(fits[k].surface(17, 33))
         balls.append(ball(surfaces[-1]))
+    kept.sort()
+    out = [Leaf(i, -1, leaves[k].transform, leaves[k].params, leaves[k].length, leaves[k].width)
+           for i, k in enumerate(kept)]
+    return out, [fits[k] for k in kept], [leaf_pts[k] for k in kept]
+
+
+def _drop_fragments(leaves: list[Leaf], fits: list[LeafFit], leaf_pts: list[np.ndarray], *, delta: float,
+                    leaf_length: float, fraction: float, skipped: dict[str, int]
+                    ) -> tuple[list[Leaf], list[LeafFit], list[np.ndarray]]:
+    """Pieces of one leaf fitted as two blades [S]: largest blade (point count) first, a blade is a fragment of a
+    kept one, and dropped as ``duplicate``, when their centroids are less than ``leaf_length`` apart, at least
+    ``fraction`` of its points lie within delta / 2 of the kept blade's plane (the least-squares plane of its
+    points) and the two point sets touch (some pair closer than delta / 2). A blade beside a coplanar neighbour
+    that does not touch it stays. Ids are renumbered in order."""
+    from scipy.spatial import cKDTree
+
+    def plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        centre = points.mean(axis=0)
+        return centre, np.linalg.svd(points - centre, full_matrices=False)[2][2]
+
+    order = np.argsort([-len(p) for p in leaf_pts], kind="stable")
+    kept: list[int] = []
+    planes: list[tuple[np.ndarray, np.ndarray]] = []
+    trees: list = []
+    for k in order:
+        pts = leaf_pts[k]
+        centre = pts.mean(axis=0)
+        fragment = False
+        for (c, n), tree in zip(planes, trees, strict=True):
+            if np.linalg.norm(c - centre) >= leaf_length or np.mean(np.abs((pts - c) @ n) < 0.5 * delta) < fraction:
+                continue
+            if np.isfinite(tree.query(pts, distance_upper_bound=0.5 * delta)[0]).any():
+                fragment = True
+                break
+        if fragment:
+            skipped["duplicate"] += 1
+            continue
+        kept.append(int(k))
+        planes.append(plane(pts))
+        trees.append(cKDTree(pts))
     kept.sort()
     out = [Leaf(i, -1, leaves[k].transform, leaves[k].params, leaves[k].length, leaves[k].width)
            for i, k in enumerate(kept)]
