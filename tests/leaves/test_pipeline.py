@@ -269,3 +269,71 @@ def test_blades_longer_than_the_length_factor_are_not_leaves(leaf_scene):
     drop = segment_and_fit(views, depths, leaf_length_hint=0.1, seed=0,
                            params=LeafParams(ground=False, max_length_factor=0.5))
     assert len(drop.leaves) == 0 and drop.skipped["not_leaf_shaped"] >= len(truth)
+
+
+def _flat_blades(rng, specs):
+    """LeafFit, Leaf and a point set per (x0, x1, y0, y1, z): points on a flat rectangle of the plane z (2 mm grid
+    with 0.5 mm noise off the plane)."""
+    from plantbench.geometry.leaf import BezierLeaf
+    from plantbench.plant import Leaf
+    from reference_impl.leaves.fit import LeafFit
+
+    omega = BezierLeaf(sil_x1=0.25, sil_x2=0.3, sil_x3=0.12).vector()
+    fits, leaves, pts = [], [], []
+    for i, (x0, x1, y0, y1, z) in enumerate(specs):
+        xx, yy = np.meshgrid(np.arange(x0, x1, 0.002), np.arange(y0, y1, 0.002))
+        p = np.stack([xx.ravel(), yy.ravel(), np.full(xx.size, z) + rng.normal(0, 0.0005, xx.size)], axis=1)
+        tr = np.eye(4)
+        tr[:3, 3] = [x0, (y0 + y1) / 2, z]
+        fits.append(LeafFit(omega, tr, x1 - x0, y1 - y0, 0.0, 3))
+        leaves.append(Leaf(i, -1, tr, {}, x1 - x0, y1 - y0))
+        pts.append(p)
+    return leaves, fits, pts
+
+
+def test_a_piece_of_a_larger_blades_leaf_is_a_fragment(rng):
+    """A blade in the plane of a larger one and touching it is a piece of the same leaf; a coplanar blade that does
+    not touch it, or one touching it but tilted out of its plane, is another leaf."""
+    from reference_impl.leaves.pipeline import _drop_fragments
+
+    delta = 0.02  # pieces touch when some points are closer than 1 cm
+    # 0: a leaf 20 cm long; 1: its tip, fitted apart (touching, coplanar); 2: a coplanar leaf 4 cm away (a gap);
+    # 3: touching leaf 0's side but 3 cm higher at its far edge (tilted: not in the plane)
+    leaves, fits, pts = _flat_blades(rng, [(0.0, 0.20, 0.0, 0.06, 0.0), (0.201, 0.26, 0.0, 0.06, 0.0),
+                                           (0.0, 0.12, 0.10, 0.16, 0.0), (0.05, 0.15, -0.061, -0.001, 0.0)])
+    tilt = pts[3]
+    tilt[:, 2] = 0.5 * (-0.001 - tilt[:, 1])  # rises to 3 cm at y = -6.1 cm
+    skipped = {"duplicate": 0}
+    kept, kept_fits, kept_pts = _drop_fragments(leaves, fits, pts, delta=delta, leaf_length=0.2, fraction=0.95,
+                                                skipped=skipped)
+    assert skipped["duplicate"] == 1 and [lf.id for lf in kept] == [0, 1, 2]
+    assert [f.length for f in kept_fits] == pytest.approx([0.2, 0.12, 0.1])  # the tip (6 cm) went
+    # farther than a leaf length from the larger blade's centroid: not its piece
+    skipped["duplicate"] = 0
+    _drop_fragments(leaves, fits, pts, delta=delta, leaf_length=0.12, fraction=0.95, skipped=skipped)
+    assert skipped["duplicate"] == 0
+
+
+def test_few_views_and_few_points_filters(leaf_scene):
+    """On the synthetic capture (six leaves, each seen by several of its six views) min_views = 2 keeps every leaf
+    and min_views = 7 (more views than the capture has) none; min_point_fraction keeps blades of a median size and
+    drops all but the largest when above 1; both are off by default."""
+    views, depths, _, truth = leaf_scene
+    base = segment_and_fit(views, depths, leaf_length_hint=0.1, seed=0, params=NOGROUND)
+    assert base.skipped["few_views"] == 0 and LeafParams().min_views == 1 and LeafParams().min_point_fraction == 0
+    two = segment_and_fit(views, depths, leaf_length_hint=0.1, seed=0, params=LeafParams(ground=False, min_views=2))
+    assert len(two.leaves) == len(truth) and two.skipped["few_views"] == 0
+    seven = segment_and_fit(views, depths, leaf_length_hint=0.1, seed=0,
+                            params=LeafParams(ground=False, min_views=7))
+    assert seven.leaves == [] and seven.skipped["few_views"] > 0
+    half = segment_and_fit(views, depths, leaf_length_hint=0.1, seed=0,
+                           params=LeafParams(ground=False, min_point_fraction=0.5))
+    assert len(half.leaves) == len(truth)
+    n = sorted(len(p) for p in base.points)
+    big = segment_and_fit(views, depths, leaf_length_hint=0.1, seed=0,
+                          params=LeafParams(ground=False, min_point_fraction=n[-1] / np.median(n)))
+    assert [len(p) for p in big.points] == [n[-1]] * n.count(n[-1])
+    with pytest.raises(InputError, match="fragment_fraction"):
+        LeafParams(fragment_fraction=1.5)
+    with pytest.raises(InputError, match="min_views"):
+        LeafParams(min_views=2.5)
