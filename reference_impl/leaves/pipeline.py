@@ -257,8 +257,9 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
         leaves, fits, leaf_pts = _drop_fragments(leaves, fits, leaf_pts, delta=delta, leaf_length=length,
                                                  fraction=params.fragment_fraction, skipped=skipped)
     if params.min_point_fraction > 0 and leaves:
-        keep = [len(p) >= params.min_point_fraction * np.median([len(q) for q in leaf_pts]) for p in leaf_pts]
-        skipped["few_points_after_icp"] += len(keep) - sum(keep)
+        least = params.min_point_fraction * float(np.median([len(q) for q in leaf_pts]))
+        keep = [len(p) >= least for p in leaf_pts]
+        skipped["few_points_after_icp"] += keep.count(False)
         leaves = [Leaf(i, -1, lf.transform, lf.params, lf.length, lf.width)
                   for i, lf in enumerate(lf for lf, k in zip(leaves, keep, strict=True) if k)]
         fits = [f for f, k in zip(fits, keep, strict=True) if k]

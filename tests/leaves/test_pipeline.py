@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -314,7 +316,7 @@ def test_a_piece_of_a_larger_blades_leaf_is_a_fragment(rng):
     assert skipped["duplicate"] == 0
 
 
-def test_few_views_and_few_points_filters(leaf_scene):
+def test_few_views_and_few_points_filters(leaf_scene, tmp_path):
     """On the synthetic capture (six leaves, each seen by several of its six views) min_views = 2 keeps every leaf
     and min_views = 7 (more views than the capture has) none; min_point_fraction keeps blades of a median size and
     drops all but the largest when above 1; both are off by default."""
@@ -333,6 +335,9 @@ def test_few_views_and_few_points_filters(leaf_scene):
     big = segment_and_fit(views, depths, leaf_length_hint=0.1, seed=0,
                           params=LeafParams(ground=False, min_point_fraction=n[-1] / np.median(n)))
     assert [len(p) for p in big.points] == [n[-1]] * n.count(n[-1])
+    write_leaves(tmp_path, big)  # the skip counts are plain integers (JSON)
+    stats = json.loads((tmp_path / "leaves_stats.json").read_text())
+    assert stats["skipped"]["few_points_after_icp"] == big.skipped["few_points_after_icp"] >= len(n) - n.count(n[-1])
     with pytest.raises(InputError, match="fragment_fraction"):
         LeafParams(fragment_fraction=1.5)
     with pytest.raises(InputError, match="min_views"):
