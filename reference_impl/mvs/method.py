@@ -8,6 +8,7 @@ Pipeline (Guo et al. 2018, section 4): known poses (or pycolmap SfM) -> neighbou
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -91,6 +92,8 @@ def depth_maps(
         rng_range = depth_range(cameras[i], centre, p.depth_params.depth_margin)
         depth = estimate_depth(images[i], [images[j] for j in nb[i]], cameras[i], [cameras[j] for j in nb[i]],
                                rng_range, p.depth_params, rng=seeded_rng(seed, "mvs", "patchmatch", i))
+        if p.depth_params.geometric_iterations == 0:  # the raw planes serve only the geometric pass (16 B a pixel)
+            depth = dataclasses.replace(depth, planes=None)
         return depth, time.perf_counter() - t0
 
     # views are independent (each has its own random stream), so they run on the job's threads with the same result
@@ -107,7 +110,7 @@ def depth_maps(
 
         # every view reads the photometric maps of its sources: the pass starts once all of them exist
         results = thread_map(geometric, range(len(cameras)))
-        maps = [r[0] for r in results]
+        maps = [dataclasses.replace(r[0], planes=None) for r in results]
         seconds = [s + r[1] for s, r in zip(seconds, results, strict=True)]
     return maps, nb, seconds
 

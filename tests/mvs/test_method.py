@@ -157,3 +157,22 @@ def test_plant_points_keep_leaves_when_the_budget_barely_binds():
     nearest = np.linalg.norm(centres[:, None, :] - out[None], axis=2).min(1)
     assert np.all(nearest < 0.01)  # every leaf survives
     assert np.mean(out[:, 2] < 0.02) < 0.01  # the ground is gone
+
+
+def test_geometric_pass_runs_over_every_view(scene):
+    """depth_maps with the geometric-consistency pass on an 8-view ring of the analytic scene: every view is refined
+    after all photometric maps exist, the raw planes are released afterwards (with the pass off too), and the share
+    of pixels within 1 % of the exact depth rises."""
+    from reference_impl.mvs.method import depth_maps
+
+    ring = synthetic.ring_cameras(8, width=96, height=96, radius=2.6)
+    rendered = [synthetic.render(scene, c, supersample=1) for c in ring]
+    images = [r[0] for r in rendered]
+    share = {}
+    for g in (0, 1):
+        p = MVSParams.from_options({"depth_params__geometric_iterations": g, "depth_params__propagation": "adaptive"})
+        maps, _, _ = depth_maps(images, ring, p, seed=0)
+        assert all(m.planes is None for m in maps)
+        share[g] = np.mean([np.mean(np.abs(m.depth - r[1])[np.isfinite(r[1])] < 0.01 * r[1][np.isfinite(r[1])])
+                            for m, r in zip(maps, rendered, strict=True)])
+    assert share[1] > share[0] > 0.25, share  # measured 0.32 -> 0.35
