@@ -258,12 +258,9 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
                                                  fraction=params.fragment_fraction, skipped=skipped)
     if params.min_point_fraction > 0 and leaves:
         least = params.min_point_fraction * float(np.median([len(q) for q in leaf_pts]))
-        keep = [len(p) >= least for p in leaf_pts]
-        skipped["few_points_after_icp"] += keep.count(False)
-        leaves = [Leaf(i, -1, lf.transform, lf.params, lf.length, lf.width)
-                  for i, lf in enumerate(lf for lf, k in zip(leaves, keep, strict=True) if k)]
-        fits = [f for f, k in zip(fits, keep, strict=True) if k]
-        leaf_pts = [p for p, k in zip(leaf_pts, keep, strict=True) if k]
+        kept = [k for k, p in enumerate(leaf_pts) if len(p) >= least]
+        skipped["few_points_after_icp"] += len(leaf_pts) - len(kept)
+        leaves, fits, leaf_pts = _select(leaves, fits, leaf_pts, kept)
     timings["fit"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_all
     stats["timings"] = timings
@@ -434,7 +431,12 @@ def _drop_overlapping(leaves: list[Leaf], fits: list[LeafFit], leaf_pts: list[np
         kept.append(int(k))
         surfaces.append(fits[k].surface(17, 33))
         balls.append(ball(surfaces[-1]))
-    kept.sort()
+    return _select(leaves, fits, leaf_pts, sorted(kept))
+
+
+def _select(leaves: list[Leaf], fits: list[LeafFit], leaf_pts: list[np.ndarray], kept: list[int]
+            ) -> tuple[list[Leaf], list[LeafFit], list[np.ndarray]]:
+    """The leaves, fits and points at the indices ``kept`` (ascending), the leaves renumbered 0, 1, ..."""
     out = [Leaf(i, -1, leaves[k].transform, leaves[k].params, leaves[k].length, leaves[k].width)
            for i, k in enumerate(kept)]
     return out, [fits[k] for k in kept], [leaf_pts[k] for k in kept]
@@ -474,10 +476,7 @@ def _drop_fragments(leaves: list[Leaf], fits: list[LeafFit], leaf_pts: list[np.n
         kept.append(int(k))
         planes.append(plane(pts))
         trees.append(cKDTree(pts))
-    kept.sort()
-    out = [Leaf(i, -1, leaves[k].transform, leaves[k].params, leaves[k].length, leaves[k].width)
-           for i, k in enumerate(kept)]
-    return out, [fits[k] for k in kept], [leaf_pts[k] for k in kept]
+    return _select(leaves, fits, leaf_pts, sorted(kept))
 
 
 def fitted_mesh(result: LeafFitResult, resolution: tuple[int, int] = (4, 8)) -> TriMesh:

@@ -86,12 +86,12 @@ def depth_maps(
     p = params or MVSParams()
     nb = neighbours if neighbours is not None else select_neighbours(cameras, p.neighbours, p.depth_params.depth_margin)
     centre = scene_centre(cameras)
+    ranges = [depth_range(cam, centre, p.depth_params.depth_margin) for cam in cameras]
 
     def one(i: int) -> tuple[DepthMap, float]:
         t0 = time.perf_counter()
-        rng_range = depth_range(cameras[i], centre, p.depth_params.depth_margin)
         depth = estimate_depth(images[i], [images[j] for j in nb[i]], cameras[i], [cameras[j] for j in nb[i]],
-                               rng_range, p.depth_params, rng=seeded_rng(seed, "mvs", "patchmatch", i))
+                               ranges[i], p.depth_params, rng=seeded_rng(seed, "mvs", "patchmatch", i))
         if p.depth_params.geometric_iterations == 0:  # the raw planes serve only the geometric pass (16 B a pixel)
             depth = dataclasses.replace(depth, planes=None)
         return depth, time.perf_counter() - t0
@@ -102,9 +102,8 @@ def depth_maps(
     if p.depth_params.geometric_iterations > 0:
         def geometric(i: int) -> tuple[DepthMap, float]:
             t0 = time.perf_counter()
-            rng_range = depth_range(cameras[i], centre, p.depth_params.depth_margin)
             depth = refine_geometric(images[i], [images[j] for j in nb[i]], cameras[i], [cameras[j] for j in nb[i]],
-                                     maps[i], [maps[j].planes[0] for j in nb[i]], rng_range, p.depth_params,
+                                     maps[i], [maps[j].planes[0] for j in nb[i]], ranges[i], p.depth_params,
                                      rng=seeded_rng(seed, "mvs", "geometric", i))
             return depth, time.perf_counter() - t0
 

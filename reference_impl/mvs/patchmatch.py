@@ -744,18 +744,13 @@ def estimate_depth(
     srcs = [to_gray(s) for s in src_images]
     near, far = float(depth_range[0]), float(depth_range[1])
     depths = sweep_depths(near, far, p.hypotheses)
-    _, std = _box_stats(ref, p.sweep_window)
-    textured = std >= p.min_texture
-    f = p.coarse_scale
-    coarse = f > 1 and min(ref.shape) // f >= p.coarse_min_size
+    textured, coarse, max_cost = _level(ref, p)
     if coarse:
         depth, cost, normal_cam = _coarse_planes(ref, srcs, ref_cam, src_cams, depths, (near, far), p, rng=rng,
                                                  refine=refine)
-        max_cost = p.coarse_max_cost
     else:
         eng = _Engine(ref, srcs, ref_cam, src_cams, p)
         depth, cost, normal_cam = eng.initial_planes(depths)
-        max_cost = p.max_cost
     if refine and p.pm_iterations > 0:
         if coarse:
             eng = _Engine(ref, srcs, ref_cam, src_cams, p, checker=p.coarse_checker)
@@ -766,7 +761,7 @@ def estimate_depth(
     elif not refine:
         normal_cam = np.zeros(depth.shape + (3,), np.float32)
         normal_cam[..., 2] = -1.0
-    keep = (cost < max_cost) & textured & np.isfinite(depth) & (depth > near) & (depth < far)
+    keep = _kept(depth, cost, max_cost, textured, near, far)
     return _depth_map(depth, normal_cam, cost, keep, ref_cam, planes=(depth, normal_cam) if refine else None)
 
 
@@ -793,9 +788,7 @@ def refine_geometric(
     ref = to_gray(ref_image)
     srcs = [to_gray(s) for s in src_images]
     near, far = float(depth_range[0]), float(depth_range[1])
-    _, std = _box_stats(ref, p.sweep_window)
-    textured = std >= p.min_texture
-    coarse = p.coarse_scale > 1 and min(ref.shape) // p.coarse_scale >= p.coarse_min_size
+    textured, coarse, max_cost = _level(ref, p)
     eng = _Engine(ref, srcs, ref_cam, src_cams, p, checker=coarse and p.coarse_checker)
     eng.set_geometry(src_depths)
     depth, normal_cam, _ = eng.patchmatch(start.planes[0].astype(np.float32), start.planes[1], near, far, rng,
@@ -803,9 +796,22 @@ def refine_geometric(
                                           iterations=p.geometric_iterations,
                                           random_depth=coarse and p.fine_random_depth)
     cost = eng.photometric_cost(depth, normal_cam)
-    max_cost = p.coarse_max_cost if coarse else p.max_cost
-    keep = (cost < max_cost) & textured & np.isfinite(depth) & (depth > near) & (depth < far)
-    return _depth_map(depth, normal_cam, cost, keep, ref_cam, planes=(depth, normal_cam))
+    return _depth_map(depth, normal_cam, cost, _kept(depth, cost, max_cost, textured, near, far), ref_cam,
+                      planes=(depth, normal_cam))
+
+
+def _level(ref: np.ndarray, p: DepthParams) -> tuple[np.ndarray, bool, float]:
+    """Of a reference view (grey): the pixels textured enough to keep a depth (window std >= ``min_texture``),
+    whether coarse to fine runs on it, and the largest cost a kept pixel may have at the final level."""
+    _, std = _box_stats(ref, p.sweep_window)
+    coarse = p.coarse_scale > 1 and min(ref.shape) // p.coarse_scale >= p.coarse_min_size
+    return std >= p.min_texture, coarse, p.coarse_max_cost if coarse else p.max_cost
+
+
+def _kept(depth: np.ndarray, cost: np.ndarray, max_cost: float, textured: np.ndarray, near: float, far: float
+          ) -> np.ndarray:
+    """The pixels that keep their depth: cheap enough, textured, and inside (near, far)."""
+    return (cost < max_cost) & textured & np.isfinite(depth) & (depth > near) & (depth < far)
 
 
 def _check_depth_inputs(src_images: list[np.ndarray], src_cams: list[Camera], p: DepthParams) -> None:
