@@ -62,6 +62,9 @@ def test_voxel_target_is_respected_and_small_input_untouched(rng):
     pts = rng.random((3000, 3))
     out, _, _, size = voxel_downsample(pts, 1000)
     assert 500 < len(out) <= 1000
+    # the search stops within 1 % of the smallest voxel that meets the target (numpy's voxels, counted by np.unique)
+    distinct = [len(np.unique(np.floor((pts - pts.min(0)) / s).astype(int), axis=0)) for s in (size, size / 1.011)]
+    assert distinct[0] == len(out) and distinct[1] > 1000
     same, _, _, size0 = voxel_downsample(pts, 5000)
     assert size0 == 0 and same is not None and len(same) == 3000
     with pytest.raises(InputError):
