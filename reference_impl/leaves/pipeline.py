@@ -22,7 +22,7 @@ Documented skips (counted in :attr:`LeafFitResult.skipped`):
   whose points lie on a larger fitted blade (:func:`_drop_overlapping`), or a piece of a larger blade's leaf: in
   its plane and touching it (:func:`_drop_fragments`, with ``fragment_fraction``);
 - ``few_points_after_icp``: too few unclaimed points near the ICP-placed template, or [S] a fitted blade with fewer
-  than ``min_point_fraction`` of the median blade's points;
+  than ``min_point_fraction`` of the typical blade's points (:func:`_typical_points`);
 - ``not_leaf_shaped`` [S]: a fitted blade narrower than ``min_width_fraction`` of the template's width-to-length
   ratio (a twig or a sliver: the paper ignores branches and twigs, section 1, but a stem seen from the side is
   planar within delta_plane too, and the template ICP lays the ellipse along it), or longer than
@@ -257,7 +257,7 @@ def segment_and_fit(views_dir: str | os.PathLike, depth_maps: list[np.ndarray | 
         leaves, fits, leaf_pts = _drop_fragments(leaves, fits, leaf_pts, delta=delta, leaf_length=length,
                                                  fraction=params.fragment_fraction, skipped=skipped)
     if params.min_point_fraction > 0 and leaves:
-        least = params.min_point_fraction * float(np.median([len(q) for q in leaf_pts]))
+        least = params.min_point_fraction * _typical_points([len(q) for q in leaf_pts])
         kept = [k for k, p in enumerate(leaf_pts) if len(p) >= least]
         skipped["few_points_after_icp"] += len(leaf_pts) - len(kept)
         leaves, fits, leaf_pts = _select(leaves, fits, leaf_pts, kept)
@@ -432,6 +432,14 @@ def _drop_overlapping(leaves: list[Leaf], fits: list[LeafFit], leaf_pts: list[np
         surfaces.append(fits[k].surface(17, 33))
         balls.append(ball(surfaces[-1]))
     return _select(leaves, fits, leaf_pts, sorted(kept))
+
+
+def _typical_points(counts: list[int]) -> float:
+    """The point count of the blade that holds the median point (the point-weighted median of the blades' counts):
+    the size of the blades that carry the foliage's surface, whatever the number of tiny false blades beside them
+    (a plain median falls to their size once they are the majority)."""
+    c = np.sort(np.asarray(counts, np.float64))
+    return float(c[np.searchsorted(np.cumsum(c), 0.5 * c.sum())])
 
 
 def _select(leaves: list[Leaf], fits: list[LeafFit], leaf_pts: list[np.ndarray], kept: list[int]

@@ -316,10 +316,22 @@ def test_a_piece_of_a_larger_blades_leaf_is_a_fragment(rng):
     assert skipped["duplicate"] == 0
 
 
+@pytest.mark.parametrize("counts", [[30, 40, 50_000, 60_000, 25, 21, 2_000, 90_000, 33], [5], [7, 7], [1, 2, 3, 4]])
+def test_typical_blade_is_the_blade_of_the_median_point(counts):
+    """min_point_fraction's reference: the size of the blade holding the median point (each point labelled with its
+    blade's size), not the median blade, which the many small false blades of the first case would set."""
+    from reference_impl.leaves.pipeline import _typical_points
+
+    labels = np.sort(np.repeat(counts, counts))
+    assert _typical_points(counts) == labels[(len(labels) + 1) // 2 - 1]
+    if len(counts) > 5:
+        assert _typical_points(counts) == 60_000 and np.median(counts) == 40
+
+
 def test_few_views_and_few_points_filters(leaf_scene, tmp_path):
     """On the synthetic capture (six leaves, each seen by several of its six views) min_views = 2 keeps every leaf
-    and min_views = 7 (more views than the capture has) none; min_point_fraction keeps blades of a median size and
-    drops all but the largest when above 1; both are off by default."""
+    and min_views = 7 (more views than the capture has) none; min_point_fraction keeps blades of the typical size
+    (the blade of the median point) and drops all but the largest when above 1; both are off by default."""
     views, depths, _, truth = leaf_scene
     base = segment_and_fit(views, depths, leaf_length_hint=0.1, seed=0, params=NOGROUND)
     assert base.skipped["few_views"] == 0 and LeafParams().min_views == 1 and LeafParams().min_point_fraction == 0
@@ -332,8 +344,9 @@ def test_few_views_and_few_points_filters(leaf_scene, tmp_path):
                            params=LeafParams(ground=False, min_point_fraction=0.5))
     assert len(half.leaves) == len(truth)
     n = sorted(len(p) for p in base.points)
+    typical = np.repeat(n, n)[(sum(n) + 1) // 2 - 1]  # the blade size of the median point
     big = segment_and_fit(views, depths, leaf_length_hint=0.1, seed=0,
-                          params=LeafParams(ground=False, min_point_fraction=n[-1] / np.median(n)))
+                          params=LeafParams(ground=False, min_point_fraction=n[-1] / typical))
     assert [len(p) for p in big.points] == [n[-1]] * n.count(n[-1])
     write_leaves(tmp_path, big)  # the skip counts are plain integers (JSON)
     stats = json.loads((tmp_path / "leaves_stats.json").read_text())
