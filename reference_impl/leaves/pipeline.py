@@ -41,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from plantbench.backend import thread_map
 from plantbench.cameras import Camera, read_cameras
 from plantbench.errors import InputError
 from plantbench.geometry.leaf import BezierLeaf
@@ -146,17 +147,19 @@ def _ground_masks(depths: list[np.ndarray | None], cameras: list[Camera], delta:
 
 def _segment_all(images, depths, cameras, *, delta, leaf_length, params, seed, grounds
                  ) -> tuple[list[ViewSegments], dict]:
-    segs = []
+    def one(i: int) -> ViewSegments | None:
+        if depths[i] is None:
+            return None
+        return segment_view(images[i], depths[i], cameras[i], delta=delta, leaf_length=leaf_length, params=params,
+                            rng=seeded_rng(seed, "leaves", "view", i), exclude=grounds[i])
+
+    # each view has its own random stream: the views run on the job's threads with the same result (SLIC and the
+    # plane fits release the GIL for most of their time)
+    segs = thread_map(one, range(len(images)))
     skipped = {"superpixel_few_points": 0, "superpixel_no_plane": 0}
-    for i, (img, d, cam) in enumerate(zip(images, depths, cameras, strict=True)):
-        if d is None:
-            segs.append(None)
-            continue
-        s = segment_view(img, d, cam, delta=delta, leaf_length=leaf_length, params=params,
-                         rng=seeded_rng(seed, "leaves", "view", i), exclude=grounds[i])
-        for k, v in s.skipped.items():
+    for s in segs:
+        for k, v in ({} if s is None else s.skipped).items():
             skipped[k] += v
-        segs.append(s)
     return segs, skipped
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from plantbench.backend import thread_map
 from plantbench.cameras import Camera, read_cameras
 from plantbench.errors import InputError
 from plantbench.io.atomic import atomic_write, write_json
@@ -134,17 +135,18 @@ def filter_depth_maps(
         raw, cameras, views=nearest_views(cameras, f.consistency_views), reproj_px=f.reproj_px, rel_depth=f.rel_depth,
         search_radius=f.search_radius,
     )
-    depths, keeps = [], []
-    for d, sup, vio, img in zip(raw, support, violations, images, strict=True):
-        keep = np.isfinite(d) & (sup >= f.min_consistent) & (vio <= p.fusion.max_violations)
-        out = np.where(keep, d, np.nan).astype(np.float32)
+    def one(i: int) -> tuple[np.ndarray, np.ndarray]:
+        keep = np.isfinite(raw[i]) & (support[i] >= f.min_consistent) & (violations[i] <= p.fusion.max_violations)
+        out = np.where(keep, raw[i], np.nan).astype(np.float32)
         if f.guided and keep.any():
-            g = masked_guided_filter(to_gray(img), out, keep, f.guided_radius, f.guided_eps)
+            g = masked_guided_filter(to_gray(images[i]), out, keep, f.guided_radius, f.guided_eps)
             ok = keep & np.isfinite(g) & (np.abs(g - out) < f.rel_depth * out)
             out = np.where(ok, g, out).astype(np.float32)
-        depths.append(out)
-        keeps.append(keep)
-    return depths, keeps
+        return out, keep
+
+    # the views are independent: on the job's threads, with the same result
+    results = thread_map(one, range(len(raw)))
+    return [r[0] for r in results], [r[1] for r in results]
 
 
 def _fields(normals: np.ndarray, colours: np.ndarray) -> dict[str, np.ndarray]:
