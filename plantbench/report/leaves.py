@@ -98,15 +98,20 @@ def leaf_rows(rows: list[tuple[str, str | Path, str]]):
     return pd.DataFrame(out)
 
 
-def depth_rows(cache: str | Path):
+def depth_rows(cache: str | Path, keys: list[str] | None = None):
     """Per case of a run cache whose points jobs link the mvs stage's depth maps (``cache/points/*/depth``): the
-    capture's leaf sizes (capture.json ``leaf_pixels``) and :func:`leaf_depth_accuracy` of the mvs depth."""
+    capture's leaf sizes (capture.json ``leaf_pixels``) and :func:`leaf_depth_accuracy` of the mvs depth.
+
+    ``keys``: the points jobs of one run (its ``timeline.csv``, kind ``points``); without them every points job of
+    the cache counts, and a cache that several runs of different mvs settings share gives the first of each
+    species."""
     import json
 
     import pandas as pd
 
     out = []
-    for folder in sorted(Path(cache, "points").iterdir()):
+    folders = sorted(Path(cache, "points").iterdir()) if keys is None else [Path(cache, "points", k) for k in keys]
+    for folder in folders:
         views, depth = folder / "views", folder / "depth"
         if not (views.is_dir() and depth.is_dir()):
             continue
