@@ -167,7 +167,7 @@ def consistency_counts(
         return sup.reshape(h, w), vio.reshape(h, w)
 
     # each view's counts read the shared maps only: the views run on the job's threads with the same result, BLAS
-    # on one thread each (OpenBLAS's own threads made two views at once no faster than one: 26.5 s -> 18.1 s for a
+    # on one thread each (OpenBLAS's own threads made two views at once no faster than one: 26.5 s -> 20.0 s for a
     # 36-view 1024 px plant on 2 cores)
     with threadpool_limits(limits=1, user_api="blas"):
         pairs = thread_map(counts, range(len(cameras)))
@@ -185,8 +185,7 @@ def _pair_counts(idx, u_i, v_i, zi, uv, uv_round, zj, depth_j, slot_j, uv_back, 
     would flag slanted surfaces through rounding); agreement when some pixel of j within Chebyshev ``radius`` of
     the rounded projection back-projects (``slot_j``: the pixel's row in ``uv_back`` and ``z_back``, j's pixels
     with a depth projected into i; -1 without depth) less than ``reproj_px`` from the pixel with a depth within
-    ``rel_depth`` of zi. The same float64
-    operations as numpy's, one pass instead of one array per step.
+    ``rel_depth`` of zi. The same float64 operations as numpy's, one pass instead of one array per step.
     """
     grow = 1.0 + rel_depth
     for k in range(idx.shape[0]):

@@ -84,13 +84,11 @@ def voxel_downsample(
     pts = check_shape("points", points, (-1, 3), "f")
     if target < 1:
         raise InputError(f"voxel_downsample: target must be >= 1, got {target}")
-    if len(pts) == 0:
+    if len(pts) == 0 or (voxel is None and len(pts) <= target):
         return pts, normals, colours, 0.0
+    rel = np.ascontiguousarray(pts - pts.min(0), np.float64)  # the voxel keys' coordinates
     if voxel is None:
-        if len(pts) <= target:
-            return pts, normals, colours, 0.0
         extent = float(np.max(pts.max(0) - pts.min(0))) or 1.0
-        rel = np.ascontiguousarray(pts - pts.min(0), np.float64)
         lo, hi = extent * 1e-6, extent
         for _ in range(40):  # smallest voxel size giving <= target voxels
             mid = np.sqrt(lo * hi)
@@ -101,7 +99,7 @@ def voxel_downsample(
             if hi / lo < 1.01:
                 break
         voxel = hi
-    keys = _voxel_keys(np.ascontiguousarray(pts - pts.min(0), np.float64), voxel)
+    keys = _voxel_keys(rel, voxel)
     _, inv, counts = np.unique(keys, return_inverse=True, return_counts=True)
     m = len(counts)
 
