@@ -11,7 +11,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from plantbench.report.leaves import depth_rows, leaf_rows
 from plantbench.report.report import leaf_figure
@@ -44,8 +43,7 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     rows = leaf_rows([(label, runs / suite, method) for label, suite, method in CONFIGS if (runs / suite).is_dir()])
     rows.to_csv(out / "leaves.csv", index=False)
-    timeline = pd.read_csv(runs / "leaves" / "timeline.csv")
-    depth = depth_rows(runs / "cache", list(timeline.key[timeline.kind == "points"]))
+    depth = depth_rows(runs / "leaves")
     depth.to_csv(out / "depth.csv", index=False)
     parts = ["## mvs depth of the leaf pixels, per plant\n\n" + markdown(depth)]
     summary = rows.pivot_table(index="config", columns="species", values="F1", sort=False)

@@ -52,3 +52,17 @@ def test_thread_budget_from_the_runner(monkeypatch):
     for bad in ("0", "two", ""):
         monkeypatch.setenv("PLANTBENCH_THREADS", bad)
         assert thread_budget() is None
+
+
+def test_thread_map_runs_blas_on_one_thread_per_worker(monkeypatch):
+    """Inside thread_map's threads BLAS is limited to one thread (its own threads compete with them); one worker
+    leaves BLAS as it is."""
+    from threadpoolctl import threadpool_info
+
+    from plantbench.backend import thread_map
+
+    def blas_threads(_):
+        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+    monkeypatch.setenv("PLANTBENCH_THREADS", "2")
+    assert all(n == [1] * len(n) and n for n in thread_map(blas_threads, range(2)))

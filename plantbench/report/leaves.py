@@ -98,20 +98,20 @@ def leaf_rows(rows: list[tuple[str, str | Path, str]]):
     return pd.DataFrame(out)
 
 
-def depth_rows(cache: str | Path, keys: list[str] | None = None):
-    """Per case of a run cache whose points jobs link the mvs stage's depth maps (``cache/points/*/depth``): the
-    capture's leaf sizes (capture.json ``leaf_pixels``) and :func:`leaf_depth_accuracy` of the mvs depth.
-
-    ``keys``: the points jobs of one run (its ``timeline.csv``, kind ``points``); without them every points job of
-    the cache counts, and a cache that several runs of different mvs settings share gives the first of each
-    species."""
+def depth_rows(run_dir: str | Path):
+    """Per case of a run whose points jobs link the mvs stage's depth maps (``points/KEY/depth`` in the cache beside
+    the run, ``OUT/cache`` for ``OUT/SUITE``; the keys from the run's ``timeline.csv``): the capture's leaf sizes
+    (capture.json ``leaf_pixels``) and :func:`leaf_depth_accuracy` of the mvs depth. Only the run's own jobs count:
+    a cache shared by runs of other mvs settings holds other depth maps of the same captures."""
     import json
 
     import pandas as pd
 
+    run_dir = Path(run_dir)
+    timeline = pd.read_csv(run_dir / "timeline.csv")
     out = []
-    folders = sorted(Path(cache, "points").iterdir()) if keys is None else [Path(cache, "points", k) for k in keys]
-    for folder in folders:
+    for key in timeline.key[timeline.kind == "points"]:
+        folder = run_dir.parent / "cache" / "points" / key
         views, depth = folder / "views", folder / "depth"
         if not (views.is_dir() and depth.is_dir()):
             continue

@@ -463,10 +463,6 @@ def _drop_fragments(leaves: list[Leaf], fits: list[LeafFit], leaf_pts: list[np.n
     that does not touch it stays. Ids are renumbered in order."""
     from scipy.spatial import cKDTree
 
-    def plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        centre = points.mean(axis=0)
-        return centre, np.linalg.svd(points - centre, full_matrices=False)[2][2]
-
     order = np.argsort([-len(p) for p in leaf_pts], kind="stable")
     kept: list[int] = []
     planes: list[tuple[np.ndarray, np.ndarray]] = []
@@ -485,7 +481,7 @@ def _drop_fragments(leaves: list[Leaf], fits: list[LeafFit], leaf_pts: list[np.n
             skipped["duplicate"] += 1
             continue
         kept.append(int(k))
-        planes.append(plane(pts))
+        planes.append((centre, np.linalg.svd(pts - centre, full_matrices=False)[2][2]))
         trees.append(cKDTree(pts))
     return _select(leaves, fits, leaf_pts, sorted(kept))
 

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from plantbench.backend import thread_map
 from plantbench.cameras import Camera
@@ -166,11 +165,8 @@ def consistency_counts(
                          vio)
         return sup.reshape(h, w), vio.reshape(h, w)
 
-    # each view's counts read the shared maps only: the views run on the job's threads with the same result, BLAS
-    # on one thread each (OpenBLAS's own threads made two views at once no faster than one: 26.5 s -> 20.0 s for a
-    # 36-view 1024 px plant on 2 cores)
-    with threadpool_limits(limits=1, user_api="blas"):
-        pairs = thread_map(counts, range(len(cameras)))
+    # each view's counts read the shared maps only: the views run on the job's threads with the same result
+    pairs = thread_map(counts, range(len(cameras)))
     return [p[0] for p in pairs], [p[1] for p in pairs]
 
 
