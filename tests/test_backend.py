@@ -1,7 +1,7 @@
 import subprocess
 import sys
 
-from plantbench.backend import find_libllvm, kdtree_workers, open3d_threads, thread_budget
+from plantbench.backend import find_libllvm, kdtree_workers, open3d_threads, thread_budget, thread_map
 
 
 def test_variant_probe_never_kills_the_caller(tmp_path):
@@ -58,8 +58,6 @@ def test_thread_map_runs_blas_on_one_thread_per_worker(monkeypatch):
     """Inside thread_map's threads BLAS is limited to one thread (its own threads compete with them); one worker
     leaves BLAS as it is."""
     from threadpoolctl import threadpool_info
-
-    from plantbench.backend import thread_map
 
     def blas_threads(_):
         return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
