@@ -34,7 +34,9 @@ class LeafParams:
     depth of the leaves suite's rubber plant they are 98 % of the leaf stage's false leaves). 0: off."""
     # ---- section 4.1: per view
     superpixels_per_leaf: float = 40.0
-    """SLIC target: expected projected leaf area / superpixel area (the paper over-segments leaves, Fig. 2(b)). [S]"""
+    """SLIC target: expected projected leaf area / superpixel area (the paper over-segments leaves, Fig. 2(b)). [S]
+    (the leaves suites use 10: on mvs depth a superpixel of a fortieth of a leaf holds too few pixels for a plane
+    normal that Eq. 8 can join across the leaf; docs/tuning/mvs.md)"""
     min_superpixel_px: int = 12
     """Smallest target superpixel area in pixels (bounds the SLIC segment count on far-away, tiny leaves)."""
     slic_compactness: float = 10.0
@@ -89,10 +91,12 @@ class LeafParams:
     pieces had 0.97-1.00 of their points in the plane, the true leaves at most 0.87)."""
     min_point_fraction: float = 0.0
     """After the fit, a blade with fewer points than this fraction of the typical blade's (the point-weighted
-    median of the blades' point counts) is skipped as ``few_points_after_icp`` [S] (0: off; the leaves suite uses
-    0.02: on the fiddle-leaf fig's mvs depth at 64 spp, 15 false blades had 23-328 points, its true leaves over
-    13,000; on the rubber plant's depth with adaptive propagation, 53 false blades of 21-1,945 points outnumbered
-    the 22 leaves of 25,000-106,000, so a plain median was one of theirs)."""
+    median of the blades' point counts) is skipped as ``few_points_after_icp`` [S] (0: off; the leaves suites use
+    0.1 with 10 superpixels per leaf: on coffee's mvs depth the typical blade had 39,000 points, the true leaves
+    7,000-10,000 at the 10th percentile, the false blades and fragments a median of 4,000-8,000. With 40
+    superpixels per leaf, 0.02: on the fiddle-leaf fig's mvs depth at 64 spp, 15 false blades had 23-328 points,
+    its true leaves over 13,000; on the rubber plant's depth with adaptive propagation, 53 false blades of 21-1,945
+    points outnumbered the 22 leaves of 25,000-106,000, so a plain median was one of theirs)."""
     # ---- section 5: fitting
     scanlines: int = 24
     """UV mapping: scanlines perpendicular to the axis, evenly spaced in v in [0, 1]."""
