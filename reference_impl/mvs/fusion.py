@@ -88,7 +88,7 @@ def voxel_downsample(
         return pts, normals, colours, 0.0
     rel = np.ascontiguousarray(pts - pts.min(0), np.float64)  # the voxel keys' coordinates
     if voxel is None:
-        extent = float(np.max(pts.max(0) - pts.min(0))) or 1.0
+        extent = float(rel.max()) or 1.0
         lo, hi = extent * 1e-6, extent
         for _ in range(40):  # smallest voxel size giving <= target voxels
             mid = np.sqrt(lo * hi)
