@@ -5,6 +5,8 @@
 - :func:`bridge_components`: join every connected component to the rest with its shortest inter-component edge
   (Boruvka rounds, so at most ceil(log2 k) rounds for k components).
 - :func:`shortest_path_tree`: multi-source Dijkstra (scipy.sparse.csgraph), the nearest root claims each vertex.
+- :func:`empty_segments`: which straight segments cross empty space (a point along them farther than a tolerance
+  from every point of the cloud): the test behind issue 25's "no edge through empty space".
 - :func:`subtree_sums`, :func:`subtree_lengths`, :func:`edge_lengths`, :func:`children_csr`: vectorised passes over a
   parent array (depths and depth levels: :mod:`plantbench.geometry.vectors`).
 
@@ -33,6 +35,7 @@ __all__ = [
     "subtree_lengths",
     "edge_lengths",
     "children_csr",
+    "empty_segments",
 ]
 
 
@@ -232,3 +235,26 @@ def children_csr(parents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ptr = np.zeros(n + 1, np.int64)
     ptr[1:] = np.cumsum(np.bincount(parents[child], minlength=n))
     return ptr, order
+
+
+def empty_segments(a: np.ndarray, b: np.ndarray, tree: cKDTree, tolerance: float) -> np.ndarray:
+    """(m,) bool: segment ``a[i] -> b[i]`` crosses empty space, i.e. some point along it lies farther than
+    ``tolerance`` from every point of the cloud held by ``tree`` (a cKDTree). The segments are sampled at most
+    ``tolerance`` apart (ends included), so a point between two samples is within ``tolerance / 2`` of one: a
+    segment reported full has every point within 1.5 ``tolerance`` of the cloud, one reported empty has a point
+    farther than ``tolerance``."""
+    a = np.asarray(a, float).reshape(-1, 3)
+    b = np.asarray(b, float).reshape(-1, 3)
+    if len(a) == 0:
+        return np.zeros(0, bool)
+    if not tolerance > 0:
+        raise InputError(f"empty_segments: tolerance must be > 0, got {tolerance}")
+    k = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / tolerance).astype(np.int64), 1) + 1
+    seg = np.repeat(np.arange(len(a)), k)
+    t = (np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k)) / np.repeat(k - 1, k)
+    samples = a[seg] + t[:, None] * (b[seg] - a[seg])
+    d, _ = tree.query(samples, k=1, distance_upper_bound=tolerance * (1 + 1e-9), workers=-1)
+    far = ~np.isfinite(d)
+    out = np.zeros(len(a), bool)
+    np.logical_or.at(out, seg, far)
+    return out

@@ -27,9 +27,16 @@ class Xu:
                     **options) -> XuResult:
         """Read ``capture_dir/points.ply``, reconstruct, write skeleton.ply, mesh.ply and leaves.json.
 
-        ``species`` is ignored: the paper's parameters are scaled by the measured plant height instead of looked up
-        per species. Returns the in-memory result.
+        The paper's lengths are scaled by the measured plant height; the one species value used is the hint's leaf
+        length (``hint.json``), as the leaf-location cell (``XuParams.leaf_size``, the paper's "sphere ... based on
+        leaf or leaf cluster size for the tree species in question"), unless the options set ``leaf_size``. Without
+        a hint the scaled ``leaf_group`` serves. Returns the in-memory result.
         """
+        from plantbench.hints import read_hint
+
+        hint = read_hint(capture_dir)
+        if hint is not None and "leaf_size" not in options:
+            options = {**options, "leaf_size": hint.leaf_length}
         params = params_from_options(XuParams, options)
         points = load_points(capture_dir)
         result = reconstruct_xu(points, seeded_rng(seed, "xu"), params)

@@ -9,7 +9,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from plantbench.geometry.vectors import levels, similarity_transform, unit
-from reference_impl.common.graph import children_csr, subtree_sums
+from reference_impl.common.graph import children_csr, empty_segments, subtree_sums
 
 __all__ = ["leaf_locations", "node_directions", "axil_angles", "support", "triangle_table", "triangle_angles",
            "similarity_transform", "section_nodes", "synthesize", "prune_bare_twigs", "SynthesisResult"]
@@ -215,11 +215,14 @@ class SynthesisResult:
     """(n,) bool: node was synthesised (not from the scan)."""
     iterations: int
     branches: int
+    refused: int = 0
+    """Copies and straight twigs refused because an edge crossed empty space."""
 
 
 def synthesize(positions: np.ndarray, parents: np.ndarray, locations: np.ndarray, density: np.ndarray, *,
                d0: float, interval: tuple, group: float, iterations: int,
-               max_nodes: int, max_copy: int = 200) -> SynthesisResult:
+               max_nodes: int, max_copy: int = 200, cloud: cKDTree | None = None, tolerance: float | None = None,
+               max_reach: float = np.inf) -> SynthesisResult:
     """Section 4.3: up to ``iterations`` rounds; each round associates every unsupported leaf location with its
     nearest feasible node, and at each node O with associations picks A (highest density) and B (highest density
     among the far half, farther than ``group`` from A), finds the most similar skeleton triangle O'A'B' (Eq. 6,
@@ -229,17 +232,30 @@ def synthesize(positions: np.ndarray, parents: np.ndarray, locations: np.ndarray
     with the similarity transform mapping O'A'B' onto OAB, hung from O. A node with a single associated location
     gets a straight twig to it [S]. The table holds the scanned skeleton's triangles (computed once, as the paper
     pre-calculates them). Stops early when everything is supported or at ``max_nodes`` [S: memory bound].
+
+    Two limits of ours (issue 25: synthesis copies only where the cloud lacks branch points, never across the crown,
+    and leaves no edge through empty space) [S]: a location is associated only with a feasible node within
+    ``max_reach`` of it; and with ``cloud`` (a cKDTree of the input points) and ``tolerance``, a copy any of whose
+    edges (the one hanging it from O included) crosses empty space (:func:`~reference_impl.common.graph.
+    empty_segments`) is refused, and so is such a straight twig; ``SynthesisResult.refused`` counts them (a refused
+    copy's locations stay unsupported and may be reached from another node in the next round).
     """
     pos = np.asarray(positions, float)
     par = np.asarray(parents, np.int64)
     synth = np.zeros(len(par), bool)
     table = triangle_table(pos, par)
     ptr0, kids0 = children_csr(par)
-    branches = 0
+    branches = refused = 0
     it = 0
+
+    def crosses_empty(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        if cloud is None or tolerance is None:
+            return np.zeros(len(a), bool)
+        return empty_segments(a, b, cloud, tolerance)
+
     for it in range(1, iterations + 1):
-        node, _, sup = support(locations, pos, par, d0=d0, interval=interval)
-        todo = np.flatnonzero(~sup & (node >= 0))
+        node, nd, sup = support(locations, pos, par, d0=d0, interval=interval)
+        todo = np.flatnonzero(~sup & (node >= 0) & (nd <= max_reach))
         if len(todo) == 0 or len(pos) >= max_nodes:
             it -= 1
             break
@@ -258,6 +274,9 @@ def synthesize(positions: np.ndarray, parents: np.ndarray, locations: np.ndarray
             dist = np.linalg.norm(locations[grp] - po, axis=1)
             far = grp[(dist >= np.median(dist)) & (np.linalg.norm(locations[grp] - pa, axis=1) > group)]
             if len(far) == 0 or table.tree is None:
+                if crosses_empty(po[None], pa[None]).any():
+                    refused += 1
+                    continue
                 new_pos.append(pa)  # straight twig O -> A
                 new_par.append(o)
                 branches += 1
@@ -273,6 +292,11 @@ def synthesize(positions: np.ndarray, parents: np.ndarray, locations: np.ndarray
             nodes = section_nodes(pos, par, o2, a2, b2, ptr0, kids0, max_copy)
             s, rot, tr = similarity_transform(pos[[o2, a2, b2]], np.stack([po, pa, pb]))
             mapped = (s * (rot @ pos[nodes].T)).T + tr
+            local = {int(v): i for i, v in enumerate(nodes)}
+            start = np.asarray([mapped[local[int(par[v])]] if int(par[v]) in local else po for v in nodes])
+            if crosses_empty(start, mapped).any():
+                refused += 1
+                continue
             remap = {int(v): base + len(new_pos) + i for i, v in enumerate(nodes)}
             for i, v in enumerate(nodes):
                 p = int(par[v])
@@ -284,7 +308,7 @@ def synthesize(positions: np.ndarray, parents: np.ndarray, locations: np.ndarray
         pos = np.concatenate([pos, np.asarray(new_pos)])
         par = np.concatenate([par, np.asarray(new_par, np.int64)])
         synth = np.concatenate([synth, np.ones(len(new_pos), bool)])
-    return SynthesisResult(pos, par, synth, it, branches)
+    return SynthesisResult(pos, par, synth, it, branches, refused)
 
 
 def prune_bare_twigs(positions: np.ndarray, parents: np.ndarray, synthetic: np.ndarray, supporting: np.ndarray,

@@ -6,11 +6,12 @@ from scipy.spatial import cKDTree
 
 from plantbench.errors import InputError
 from plantbench.io.plantio import read_reconstruction
-from plantbench.io.ply import write_points
+from plantbench.io.ply import read_points, write_points
 from plantbench.methods.api import Method
 from plantbench.plant import Skeleton
+from plantbench.seeding import rng as seeded_rng
 from reference_impl.livny import Livny, reconstruct_livny
-from reference_impl.xu import Xu, reconstruct_xu
+from reference_impl.xu import Xu, XuParams, reconstruct_xu
 from tests.baselines.synthetic import random_tree, sample_surface, skeleton_samples
 
 METHODS = {"livny": reconstruct_livny, "xu": reconstruct_xu}
@@ -155,3 +156,27 @@ def test_suite_options_map_onto_the_parameters():
     with pytest.raises(InputError, match=r"^guo: unknown option\(s\) nope \(valid: .*, prior, leaves\)"):
         guo_params({"nope": 1})
     assert guo_params({"tropism": [0.0, 0.0, -1.0]}).tropism == (0.0, 0.0, -1.0)
+
+
+def test_xu_takes_the_leaf_size_from_the_species_hint(plant, tmp_path):
+    """The xu method uses the hint's leaf length as the leaf-location cell and support distance (XuParams.leaf_size):
+    its output equals reconstruct_xu with that leaf_size, and differs from the run without a hint (the cloud has
+    foliage: blobs beside the branches, which become leaf locations)."""
+    from plantbench.hints import load_hint, write_hint
+
+    gt, pts = plant
+    rng = np.random.Generator(np.random.PCG64(11))
+    tips = gt.positions[rng.choice(len(gt.positions), 150, replace=False)]
+    blobs = np.repeat(tips + rng.normal(0, 0.06, tips.shape), 40, axis=0) + rng.normal(0, 0.01, (6000, 3))
+    cap = tmp_path / "capture"
+    cap.mkdir()
+    write_points(cap / "points.ply", np.vstack([pts[::3], blobs]))
+    Xu().reconstruct(cap, tmp_path / "nohint", seed=3)
+    hint = load_hint("peach")
+    write_hint(cap, hint)
+    Xu().reconstruct(cap, tmp_path / "hint", seed=3)
+    direct = reconstruct_xu(read_points(cap / "points.ply")[0], seeded_rng(3, "xu"), XuParams(leaf_size=hint.leaf_length))
+    got = read_reconstruction(tmp_path / "hint")
+    np.testing.assert_allclose(got.skeleton.positions, direct.skeleton.positions, atol=1e-6)
+    assert len(got.leaves) == len(direct.leaves)
+    assert len(read_reconstruction(tmp_path / "nohint").leaves) != len(got.leaves)

@@ -182,3 +182,69 @@ def test_stub_root_trees_are_dropped_but_real_stems_stay():
     assert _stub_root_trees(pos, par, 0.05).tolist() == [True, True, True, True, False, False]
     # a lone short tree is never dropped
     assert _stub_root_trees(pos[4:], np.array([-1, 0]), 0.05).all()
+
+
+def test_empty_segments_against_dense_sampling(rng):
+    """empty_segments flags a segment with a point farther than the tolerance from the cloud, never one whose every
+    point is within it (checked against the segment sampled 200 times densely, with brute-force distances)."""
+    from scipy.spatial import cKDTree
+
+    from reference_impl.common.graph import empty_segments
+
+    # a cloud along two strands with a 0.3 m gap in the first
+    strand = np.r_[np.linspace(0, 1.0, 400), np.linspace(1.3, 2.0, 300)]
+    cloud = np.vstack([np.c_[strand, np.zeros_like(strand), np.zeros_like(strand)],
+                       np.c_[np.linspace(0, 2, 800), np.full(800, 0.5), np.zeros(800)]])
+    cloud += rng.normal(0, 0.002, cloud.shape)
+    tol = 0.05
+    a = rng.uniform([-0.1, -0.2, -0.05], [2.1, 0.7, 0.05], (300, 3))
+    b = a + rng.normal(0, 0.4, (300, 3)) * [1, 0.3, 0.1]
+    got = empty_segments(a, b, cKDTree(cloud), tol)
+    t = np.linspace(0, 1, 200)
+    dmax = np.array([np.min(np.linalg.norm((p + t[:, None] * (q - p))[:, None] - cloud[None], axis=2), axis=1).max()
+                     for p, q in zip(a, b)])
+    assert np.all(got[dmax > 1.5 * tol + 1e-3])  # a point farther than 1.5 tol: always empty
+    assert not np.any(got[dmax < tol - 1e-3])  # every point within tol: never empty
+    assert (dmax > 1.5 * tol).sum() > 20 and (dmax < tol).sum() > 5  # both kinds occur
+    # the gap: a segment along the first strand across it is empty, the same along the full second strand is not
+    assert empty_segments(np.array([[0.8, 0, 0]]), np.array([[1.5, 0, 0]]), cKDTree(cloud), tol)[0]
+    assert not empty_segments(np.array([[0.8, 0.5, 0]]), np.array([[1.5, 0.5, 0]]), cKDTree(cloud), tol)[0]
+
+
+def test_synthesis_refuses_copies_across_empty_space():
+    """Issue 25: with the input cloud given, a copy (or twig) any of whose edges crosses empty space is refused;
+    where the cloud has points along the copy, the same synthesis goes ahead."""
+    from scipy.spatial import cKDTree
+
+    pos = np.array([[0, 0, 0], [0, 0, 0.5], [0, 0, 1.0], [-0.3, 0, 1.4], [0.3, 0, 1.4], [0, 0, 1.3]], float)
+    par = np.array([-1, 0, 1, 2, 2, 2])
+    locs = np.array([[0.35, 0.0, 0.85], [0.5, 0.0, 0.9], [0.42, 0.05, 0.88]])
+    dens = np.array([2, 1, 2])
+    kw = dict(d0=0.08, interval=(20.0, 60.0), group=0.02, iterations=3, max_nodes=1000)
+    free = synthesize(pos, par, locs, dens, **kw)
+    assert free.synthetic.sum() > 0 and free.refused == 0
+    # cloud: the scanned skeleton's own points only (the leaves float in empty space beside it)
+    t = np.linspace(0, 1, 50)[:, None]
+    own = np.vstack([pos[par[c]] + t * (pos[c] - pos[par[c]]) for c in range(1, len(pos))])
+    sparse = synthesize(pos, par, locs, dens, cloud=cKDTree(own), tolerance=0.03, **kw)
+    assert sparse.refused > 0 and sparse.synthetic.sum() == 0
+    # cloud filled around the copies the free synthesis made: they go ahead, and each new edge is on the cloud
+    new = np.flatnonzero(free.synthetic)
+    fill = np.vstack([own] + [free.positions[free.parents[c]] + t * (free.positions[c] - free.positions[free.parents[c]])
+                              for c in new])
+    full = synthesize(pos, par, locs, dens, cloud=cKDTree(fill), tolerance=0.03, **kw)
+    assert full.synthetic.sum() == free.synthetic.sum() and full.refused == 0
+    np.testing.assert_allclose(full.positions, free.positions)
+
+
+def test_synthesis_reach_limits_the_association():
+    """A location whose nearest feasible node lies beyond ``max_reach`` gets no copy (never across the crown)."""
+    pos = np.array([[0, 0, 0], [0, 0, 0.5], [0, 0, 1.0], [-0.3, 0, 1.4], [0.3, 0, 1.4], [0, 0, 1.3]], float)
+    par = np.array([-1, 0, 1, 2, 2, 2])
+    locs = np.array([[0.35, 0.0, 0.85], [0.5, 0.0, 0.9], [0.42, 0.05, 0.88]])
+    dens = np.array([2, 1, 2])
+    node, nd, _ = support(locs, pos, par, d0=0.08, interval=(20.0, 60.0))
+    kw = dict(d0=0.08, interval=(20.0, 60.0), group=0.02, iterations=1, max_nodes=1000)
+    near = synthesize(pos, par, locs, dens, max_reach=float(nd.max()) + 1e-9, **kw)
+    far = synthesize(pos, par, locs, dens, max_reach=float(nd[node >= 0].min()) - 1e-9, **kw)
+    assert near.synthetic.sum() > 0 and far.synthetic.sum() == 0
