@@ -28,9 +28,9 @@ class Xu:
         """Read ``capture_dir/points.ply``, reconstruct, write skeleton.ply, mesh.ply and leaves.json.
 
         The paper's lengths are scaled by the measured plant height; the one species value used is the hint's leaf
-        length (``hint.json``), as the leaf-location cell (``XuParams.leaf_size``, the paper's "sphere ... based on
-        leaf or leaf cluster size for the tree species in question"), unless the options set ``leaf_size``. Without
-        a hint the scaled ``leaf_group`` serves. Returns the in-memory result.
+        length (``hint.json``), as the leaf-location cell and the support distance d0 (``XuParams.leaf_size``, the
+        paper's "sphere ... based on leaf or leaf cluster size for the tree species in question"), unless the
+        options set ``leaf_size``. Without a hint both are scaled from the height. Returns the in-memory result.
         """
         from plantbench.hints import read_hint
 

@@ -82,7 +82,7 @@ class XuParams:
     support_distance / leaf_group (Table I's 0.1 m twig length is a leaf-scale length too, the elm's leaf, not a
     twentieth of its height). The method sets it from the species hint's leaf length. None: both scaled by height
     [S: with height-scaled lengths a 4.8 m peach's d0 was 2.4 cm against its 12 cm leaves, and synthesis grew
-    7.6x the true branch count on the oracle cloud of the multiview suite; 3.6x with the leaf's]."""
+    7.6x the true branch count on the multiview suite's oracle cloud; 4.1x with the leaf's]."""
     synthesis_iterations: int = 3
     """Maximal skeleton synthesis iterations (Table I, section 4.3)."""
     bare_twig_keep: float = 0.25
