@@ -292,16 +292,14 @@ def synthesize(positions: np.ndarray, parents: np.ndarray, locations: np.ndarray
             nodes = section_nodes(pos, par, o2, a2, b2, ptr0, kids0, max_copy)
             s, rot, tr = similarity_transform(pos[[o2, a2, b2]], np.stack([po, pa, pb]))
             mapped = (s * (rot @ pos[nodes].T)).T + tr
-            local = {int(v): i for i, v in enumerate(nodes)}
-            start = np.asarray([mapped[local[int(par[v])]] if int(par[v]) in local else po for v in nodes])
-            if crosses_empty(start, mapped).any():
+            # each copied node's parent within the copy (nodes is sorted), or O for the copy's first nodes
+            up = np.minimum(np.searchsorted(nodes, par[nodes]), len(nodes) - 1)
+            inside = nodes[up] == par[nodes]
+            if crosses_empty(np.where(inside[:, None], mapped[up], po), mapped).any():
                 refused += 1
                 continue
-            remap = {int(v): base + len(new_pos) + i for i, v in enumerate(nodes)}
-            for i, v in enumerate(nodes):
-                p = int(par[v])
-                new_pos.append(mapped[i])
-                new_par.append(remap.get(p, o))
+            new_par.extend(np.where(inside, base + len(new_pos) + up, o).tolist())
+            new_pos.extend(mapped)
             branches += 1
         if not new_pos:
             break

@@ -99,12 +99,18 @@ def test_leaf_locations_and_density(rng):
     assert np.all(dens[far] == far.sum() - 1) and np.all(dens[~far] == (~far).sum() - 1)
 
 
-def test_synthesis_supports_unsupported_leaves():
-    # a scanned skeleton with one fork (the triangle library) and leaf locations out of reach to its side
+def _fork_and_leaves():
+    """A scanned skeleton with one fork (the triangle library) and leaf locations out of reach to its side:
+    positions, parents, locations, densities."""
     pos = np.array([[0, 0, 0], [0, 0, 0.5], [0, 0, 1.0], [-0.3, 0, 1.4], [0.3, 0, 1.4], [0, 0, 1.3]], float)
     par = np.array([-1, 0, 1, 2, 2, 2])
     locs = np.array([[0.35, 0.0, 0.85], [0.5, 0.0, 0.9], [0.42, 0.05, 0.88]])
     dens = np.array([2, 1, 2])
+    return pos, par, locs, dens
+
+
+def test_synthesis_supports_unsupported_leaves():
+    pos, par, locs, dens = _fork_and_leaves()
     interval = (20.0, 60.0)
     _, _, sup0 = support(locs, pos, par, d0=0.08, interval=interval)
     res = synthesize(pos, par, locs, dens, d0=0.08, interval=interval, group=0.02, iterations=3,
@@ -216,10 +222,7 @@ def test_synthesis_refuses_copies_across_empty_space():
     where the cloud has points along the copy, the same synthesis goes ahead."""
     from scipy.spatial import cKDTree
 
-    pos = np.array([[0, 0, 0], [0, 0, 0.5], [0, 0, 1.0], [-0.3, 0, 1.4], [0.3, 0, 1.4], [0, 0, 1.3]], float)
-    par = np.array([-1, 0, 1, 2, 2, 2])
-    locs = np.array([[0.35, 0.0, 0.85], [0.5, 0.0, 0.9], [0.42, 0.05, 0.88]])
-    dens = np.array([2, 1, 2])
+    pos, par, locs, dens = _fork_and_leaves()
     kw = dict(d0=0.08, interval=(20.0, 60.0), group=0.02, iterations=3, max_nodes=1000)
     free = synthesize(pos, par, locs, dens, **kw)
     assert free.synthetic.sum() > 0 and free.refused == 0
@@ -239,10 +242,7 @@ def test_synthesis_refuses_copies_across_empty_space():
 
 def test_synthesis_reach_limits_the_association():
     """A location whose nearest feasible node lies beyond ``max_reach`` gets no copy (never across the crown)."""
-    pos = np.array([[0, 0, 0], [0, 0, 0.5], [0, 0, 1.0], [-0.3, 0, 1.4], [0.3, 0, 1.4], [0, 0, 1.3]], float)
-    par = np.array([-1, 0, 1, 2, 2, 2])
-    locs = np.array([[0.35, 0.0, 0.85], [0.5, 0.0, 0.9], [0.42, 0.05, 0.88]])
-    dens = np.array([2, 1, 2])
+    pos, par, locs, dens = _fork_and_leaves()
     node, nd, _ = support(locs, pos, par, d0=0.08, interval=(20.0, 60.0))
     kw = dict(d0=0.08, interval=(20.0, 60.0), group=0.02, iterations=1, max_nodes=1000)
     near = synthesize(pos, par, locs, dens, max_reach=float(nd.max()) + 1e-9, **kw)
