@@ -9,7 +9,9 @@ Dr.Jit's LLVM backend compiles its kernels for the host CPU by default: on an AV
 vectors and other intrinsics (the 14-bit ``rsqrt14`` beside AVX's 12-bit ``rsqrt``) than on an AVX2 one, so renders
 and mvs depth maps would change with the machine. :func:`pin_llvm_target` fixes the code generation to one
 instruction set and vector width (:data:`PINNED_TARGET`, AVX2 at width 8) on every x86-64 machine, through drjit-core's
-exported ``jit_llvm_set_target`` (its Python bindings do not wrap it), before the first kernel.
+exported ``jit_llvm_set_target`` (its Python bindings do not wrap it), before the first kernel, and turns Dr.Jit's
+``FastMath`` off (it compiles ``dr.rsqrt`` to ``vrsqrtps``, whose bits differ between CPU models and vendors).
+:func:`pin_embree` does the same for Mitsuba's Embree, which picks its kernels from the CPU (docs/tuning/determinism.md).
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from plantbench.paths import cache_dir
 __all__ = ["LLVM_CANDIDATES", "find_libllvm", "select_variant", "load_mitsuba", "apply_thread_budget",
            "BackendWarning", "LLVMTarget", "PINNED_TARGET", "requested_llvm_target", "pin_llvm_target",
            "current_llvm_target", "load_drjit", "host_can_pin", "host_has", "host_cpu_name", "llvm_target_id",
+           "EMBREE_PIN", "EMBREE_REQUIRES", "requested_embree_config", "pin_embree", "embree_config_seen",
            "thread_budget", "thread_map", "kdtree_workers"]
 
 LLVM_CANDIDATES = (
@@ -274,6 +277,9 @@ def pin_llvm_target(dr=None) -> LLVMTarget | None:
         warnings.warn(f"this CPU lacks {PIN_REQUIRES}: Dr.Jit keeps its host target, and renders and mvs depth "
                       "are not comparable with other machines'", BackendWarning, stacklevel=2)
         return None
+    # FastMath is per thread: every load_drjit / load_mitsuba (each stage calls one on the thread it builds kernels
+    # on) turns it off for the calling thread
+    dr.set_flag(dr.JitFlag.FastMath, False)
     set_target, *_ = _jit_core(dr)
     now = current_llvm_target(dr)
     if now != target:
@@ -285,11 +291,108 @@ def pin_llvm_target(dr=None) -> LLVMTarget | None:
 
 
 def llvm_target_id() -> str:
-    """What the requested target changes in outputs, for cache keys: its spec, or 'host:<cpu>' when unpinned."""
+    """What the pins change in outputs, for records and cache keys: the Dr.Jit target's spec with exact math and the
+    Embree configuration ('haswell:...:8 exact-math embree:isa=avx512,...'; 'embree:host' where Embree keeps its own
+    choice), or 'host:<cpu>' when unpinned."""
     target = requested_llvm_target()
     if target is not None:
-        return target.spec()
+        return f"{target.spec()} exact-math embree:{requested_embree_config() or 'host'}"
     return f"host:{platform.machine()}:{host_cpu_name()}"
+
+
+EMBREE_PIN = "isa=avx512,frequency_level=simd256"
+"""The Embree configuration every AVX-512 machine uses: the AVX-512 kernels, whose approximate reciprocal
+(``vrcp14ps``) is specified bit for bit (AVX2's ``vrcpps`` is not), and the 256-bit frequency level (BVH8), which
+Embree otherwise picks by CPU model."""
+
+EMBREE_REQUIRES = "+avx512f,+avx512cd,+avx512dq,+avx512bw,+avx512vl"
+"""The CPU features of Embree's AVX-512 (SKX) kernels."""
+
+_EMBREE_SOURCE = Path(__file__).parent / "native" / "embree_pin.c"
+_embree_lib = None
+
+
+def requested_embree_config() -> str | None:
+    """The configuration :func:`pin_embree` appends to Mitsuba's: :data:`EMBREE_PIN` where the LLVM target is pinned
+    (not ``PLANTBENCH_LLVM_TARGET=host``) on a CPU with :data:`EMBREE_REQUIRES`; None (Embree's own choice) otherwise."""
+    if requested_llvm_target() is None or not host_has(EMBREE_REQUIRES):
+        return None
+    return EMBREE_PIN
+
+
+def _embree_pin_library() -> Path | None:
+    """The shared library of ``native/embree_pin.c``, compiled once per source with the system C compiler into the
+    user cache (None, with a warning, when there is no compiler or it fails)."""
+    import shutil
+
+    source = _EMBREE_SOURCE.read_bytes()
+    out = cache_dir() / "native" / f"embree_pin-{hashlib.sha256(source).hexdigest()[:16]}.so"
+    if out.exists():
+        return out
+    cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
+    if not cc:
+        warnings.warn("no C compiler (cc): Embree keeps its own choice of kernels, and renders are not comparable "
+                      "with other CPUs'", BackendWarning, stacklevel=3)
+        return None
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(f".{os.getpid()}.tmp")
+    try:
+        proc = subprocess.run([cc, "-O2", "-shared", "-fPIC", "-o", str(tmp), str(_EMBREE_SOURCE), "-ldl"],
+                              capture_output=True, text=True, timeout=120)
+        error = proc.stderr.strip()[-300:] if proc.returncode else ""
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        error = str(exc)
+    if error:
+        tmp.unlink(missing_ok=True)
+        warnings.warn(f"compiling {_EMBREE_SOURCE} with {cc} failed ({error}): Embree keeps its own choice of "
+                      "kernels, and renders are not comparable with other CPUs'", BackendWarning, stacklevel=3)
+        return None
+    os.replace(tmp, out)
+    return out
+
+
+def pin_embree() -> str | None:
+    """Make Mitsuba's Embree use :func:`requested_embree_config` (call before ``import mitsuba``; idempotent): loads
+    ``native/embree_pin.c``, built into the user cache, which appends the configuration to the one Mitsuba passes
+    ``rtcNewDevice``. Returns the configuration in force, or None where Embree keeps its own choice (asked for, a
+    CPU without AVX-512, no C compiler, or Mitsuba imported before the pin could be placed), with a
+    :class:`BackendWarning` where that makes renders incomparable with other machines'."""
+    global _embree_lib
+    import importlib.util
+
+    config = requested_embree_config()
+    if config is None:
+        if requested_llvm_target() is not None and platform.machine().lower() in ("x86_64", "amd64"):
+            warnings.warn(f"this CPU lacks {EMBREE_REQUIRES}: Embree keeps its own kernels, and renders are not "
+                          "comparable with AVX-512 machines'", BackendWarning, stacklevel=2)
+        return None
+    if _embree_lib is not None:
+        return config
+    if "mitsuba" in sys.modules:
+        warnings.warn("mitsuba was imported before plantbench could pin Embree's configuration: renders are not "
+                      "comparable with other CPUs'", BackendWarning, stacklevel=2)
+        return None
+    spec = importlib.util.find_spec("mitsuba")
+    embree = Path(spec.origin).parent / "libembree3.so" if spec and spec.origin else None
+    if embree is None or not embree.exists():
+        return None
+    library = _embree_pin_library()
+    if library is None:
+        return None
+    lib = ctypes.CDLL(str(library), mode=os.RTLD_GLOBAL)
+    lib.plantbench_embree_pin.argtypes = [ctypes.c_char_p, ctypes.c_char_p]
+    lib.plantbench_embree_last_config.restype = ctypes.c_char_p
+    lib.plantbench_embree_pin(str(embree).encode(), config.encode())
+    _embree_lib = lib
+    return config
+
+
+def embree_config_seen() -> tuple[int, str] | None:
+    """(devices created, configuration of the last) as Mitsuba's Embree received them through the pin; None when
+    the pin is not loaded."""
+    if _embree_lib is None:
+        return None
+    return int(_embree_lib.plantbench_embree_calls()), _embree_lib.plantbench_embree_last_config().decode()
 
 
 def host_cpu_name() -> str:
@@ -318,6 +421,8 @@ def load_drjit():
 def load_mitsuba(variant: str | None = None):
     """Import mitsuba with the selected variant set and Dr.Jit's LLVM target pinned; returns the module."""
     chosen = variant or select_variant()
+    if chosen.startswith("llvm"):
+        pin_embree()
     import drjit as dr
     import mitsuba as mi
 
