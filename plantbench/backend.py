@@ -334,21 +334,23 @@ def _embree_pin_library() -> Path | None:
         warnings.warn("no C compiler (cc): Embree keeps its own choice of kernels, and renders are not comparable "
                       "with other CPUs'", BackendWarning, stacklevel=3)
         return None
-    out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_suffix(f".{os.getpid()}.tmp")
     try:
+        out.parent.mkdir(parents=True, exist_ok=True)
         proc = subprocess.run([cc, "-O2", "-shared", "-fPIC", "-o", str(tmp), str(_EMBREE_SOURCE), "-ldl"],
                               capture_output=True, text=True, timeout=120)
-        error = proc.stderr.strip()[-300:] if proc.returncode else ""
+        if proc.returncode:
+            raise OSError(proc.stderr.strip()[-300:] or f"exit status {proc.returncode}")
+        os.replace(tmp, out)
+        return out
     except (OSError, subprocess.TimeoutExpired) as exc:
-        error = str(exc)
-    if error:
-        tmp.unlink(missing_ok=True)
-        warnings.warn(f"compiling {_EMBREE_SOURCE} with {cc} failed ({error}): Embree keeps its own choice of "
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:
+            pass
+        warnings.warn(f"compiling {_EMBREE_SOURCE} with {cc} failed ({exc}): Embree keeps its own choice of "
                       "kernels, and renders are not comparable with other CPUs'", BackendWarning, stacklevel=3)
         return None
-    os.replace(tmp, out)
-    return out
 
 
 def pin_embree() -> str | None:

@@ -171,14 +171,23 @@ def test_target_spec_from_the_environment(monkeypatch):
             requested_llvm_target()
 
 
-def test_embree_pin_without_a_compiler_warns_and_leaves_embree(monkeypatch, tmp_path):
+def test_embree_pin_that_cannot_be_built_warns_and_leaves_embree(monkeypatch, tmp_path):
     from plantbench import backend
 
     monkeypatch.setenv("PLANTBENCH_CACHE", str(tmp_path))
     monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
     with pytest.warns(backend.BackendWarning, match="no-such-cc"):
         assert backend._embree_pin_library() is None
+    monkeypatch.setenv("CC", "false")                   # fails without a word
+    with pytest.warns(backend.BackendWarning, match="exit status 1"):
+        assert backend._embree_pin_library() is None
     assert not list(tmp_path.rglob("*.so")) and not list(tmp_path.rglob("*.tmp"))
     monkeypatch.delenv("CC")
+    blocked = tmp_path / "a-file"
+    blocked.write_text("")
+    monkeypatch.setenv("PLANTBENCH_CACHE", str(blocked))   # the cache cannot be made: a warning, not a crash
+    with pytest.warns(backend.BackendWarning, match="a-file"):
+        assert backend._embree_pin_library() is None
+    monkeypatch.setenv("PLANTBENCH_CACHE", str(tmp_path))
     built = backend._embree_pin_library()
     assert built is not None and built.parent.parent == tmp_path and backend._embree_pin_library() == built
