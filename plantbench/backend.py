@@ -33,7 +33,7 @@ from plantbench.paths import cache_dir
 
 __all__ = ["LLVM_CANDIDATES", "find_libllvm", "select_variant", "load_mitsuba", "apply_thread_budget",
            "BackendWarning", "LLVMTarget", "PINNED_TARGET", "requested_llvm_target", "pin_llvm_target",
-           "current_llvm_target", "load_drjit", "host_can_pin", "host_has", "host_cpu_name", "llvm_target_id",
+           "current_llvm_target", "load_drjit", "host_can_pin", "host_has", "host_cpu_name", "cpu_name", "llvm_target_id",
            "EMBREE_PIN", "EMBREE_REQUIRES", "requested_embree_config", "pin_embree", "embree_config_seen",
            "thread_budget", "thread_map", "kdtree_workers"]
 
@@ -397,13 +397,33 @@ def embree_config_seen() -> tuple[int, str] | None:
     return int(_embree_lib.plantbench_embree_calls()), _embree_lib.plantbench_embree_last_config().decode()
 
 
+def cpu_name(cpuinfo: str) -> str | None:
+    """'<model name> (family F, model M)' from the first processor of a /proc/cpuinfo text (None without a model
+    name). The numbers tell apart CPUs whose model name does not: a cloud AMD EPYC reads 'AMD EPYC' on Zen 4
+    (family 25) and Zen 5 (family 26) alike, and their renders differed before the fast-math pin."""
+    fields: dict[str, str] = {}
+    for line in cpuinfo.splitlines():
+        if not line.strip():
+            if fields:
+                break
+            continue
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    name = fields.get("model name")
+    if not name:
+        return None
+    family, model = fields.get("cpu family"), fields.get("model")
+    return f"{name} (family {family}, model {model})" if family and model else name
+
+
 def host_cpu_name() -> str:
-    """The CPU's model name (/proc/cpuinfo), for records."""
+    """This CPU's :func:`cpu_name`, for records (and the name of an ``--another-cpu`` run)."""
     try:
         with open("/proc/cpuinfo") as fh:
-            return next(line for line in fh if line.startswith("model name")).split(":", 1)[1].strip()
-    except (OSError, StopIteration, IndexError):
-        return platform.processor() or "unknown"
+            name = cpu_name(fh.read())
+    except OSError:
+        name = None
+    return name or platform.processor() or "unknown"
 
 
 def load_drjit():

@@ -228,3 +228,19 @@ def test_variability_cli_end_to_end(tmp_path):
         gate = subprocess.run([sys.executable, "-m", "plantbench.cli", "gate", str(tmp_path / "runs" / run / "tiny"),
                                "--baseline", str(reports / "baseline.json")], capture_output=True, text=True)
         assert gate.returncode == 0 and "gate passed" in gate.stdout, gate.stdout + gate.stderr
+
+
+def test_two_cpus_with_one_model_name_make_two_runs():
+    """Cloud AMD EPYCs report 'AMD EPYC' whatever their generation: the family and model numbers keep a Zen 4's and a
+    Zen 5's --another-cpu runs apart (read from /proc/cpuinfo texts; the first processor counts)."""
+    from plantbench.backend import cpu_name
+
+    def info(family, model):
+        one = f"processor\t: 0\nvendor_id\t: AuthenticAMD\ncpu family\t: {family}\nmodel\t\t: {model}\n" \
+              "model name\t: AMD EPYC\nflags\t\t: fpu avx2\n"
+        return one + "\n" + one.replace("processor\t: 0", "processor\t: 1").replace(f": {model}\n", ": 99\n", 1)
+
+    zen4, zen5 = cpu_name(info(25, 17)), cpu_name(info(26, 2))
+    assert zen4 == "AMD EPYC (family 25, model 17)" and zen5 == "AMD EPYC (family 26, model 2)"
+    assert another_cpu(zen4).name != another_cpu(zen5).name
+    assert cpu_name("processor\t: 0\nmodel name\t: Some CPU\n") == "Some CPU" and cpu_name("flags : x\n") is None
