@@ -293,10 +293,13 @@ def pin_llvm_target(dr=None) -> LLVMTarget | None:
 def llvm_target_id() -> str:
     """What the pins change in outputs, for records and cache keys: the Dr.Jit target's spec with exact math and the
     Embree configuration ('haswell:...:8 exact-math embree:isa=avx512,...'; 'embree:host' where Embree keeps its own
-    choice), or 'host:<cpu>' when unpinned."""
+    choice, the pin's library included when it cannot be built), or 'host:<cpu>' when unpinned."""
     target = requested_llvm_target()
     if target is not None:
-        return f"{target.spec()} exact-math embree:{requested_embree_config() or 'host'}"
+        config = requested_embree_config()
+        if config is not None and _embree_pin_library() is None:
+            config = None
+        return f"{target.spec()} exact-math embree:{config or 'host'}"
     return f"host:{platform.machine()}:{host_cpu_name()}"
 
 

@@ -181,6 +181,9 @@ def test_embree_pin_that_cannot_be_built_warns_and_leaves_embree(monkeypatch, tm
     monkeypatch.setenv("CC", "false")                   # fails without a word
     with pytest.warns(backend.BackendWarning, match="exit status 1"):
         assert backend._embree_pin_library() is None
+    if backend.requested_embree_config() is not None:   # records and cache keys do not claim a pin that is not there
+        with pytest.warns(backend.BackendWarning):
+            assert backend.llvm_target_id().endswith(" exact-math embree:host")
     assert not list(tmp_path.rglob("*.so")) and not list(tmp_path.rglob("*.tmp"))
     monkeypatch.delenv("CC")
     blocked = tmp_path / "a-file"
@@ -191,3 +194,5 @@ def test_embree_pin_that_cannot_be_built_warns_and_leaves_embree(monkeypatch, tm
     monkeypatch.setenv("PLANTBENCH_CACHE", str(tmp_path))
     built = backend._embree_pin_library()
     assert built is not None and built.parent.parent == tmp_path and backend._embree_pin_library() == built
+    if backend.requested_embree_config() is not None:
+        assert backend.llvm_target_id().endswith(" embree:" + backend.EMBREE_PIN)
