@@ -327,6 +327,9 @@ def _embree_pin_library() -> Path | None:
     """The shared library of ``native/embree_pin.c``, compiled once per source with the system C compiler into the
     user cache (None, with a warning, when there is no compiler or it fails)."""
     import shutil
+    import tempfile
+
+    from plantbench.io.atomic import write_bytes
 
     source = _EMBREE_SOURCE.read_bytes()
     out = cache_dir() / "native" / f"embree_pin-{hashlib.sha256(source).hexdigest()[:16]}.so"
@@ -337,20 +340,16 @@ def _embree_pin_library() -> Path | None:
         warnings.warn("no C compiler (cc): Embree keeps its own choice of kernels, and renders are not comparable "
                       "with other CPUs'", BackendWarning, stacklevel=3)
         return None
-    tmp = out.with_suffix(f".{os.getpid()}.tmp")
     try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        proc = subprocess.run([cc, "-O2", "-shared", "-fPIC", "-o", str(tmp), str(_EMBREE_SOURCE), "-ldl"],
-                              capture_output=True, text=True, timeout=120)
-        if proc.returncode:
-            raise OSError(proc.stderr.strip()[-300:] or f"exit status {proc.returncode}")
-        os.replace(tmp, out)
+        with tempfile.TemporaryDirectory() as tmp:
+            built = Path(tmp) / out.name
+            proc = subprocess.run([cc, "-O2", "-shared", "-fPIC", "-o", str(built), str(_EMBREE_SOURCE), "-ldl"],
+                                  capture_output=True, text=True, timeout=120)
+            if proc.returncode:
+                raise OSError(proc.stderr.strip()[-300:] or f"exit status {proc.returncode}")
+            write_bytes(out, built.read_bytes())
         return out
     except (OSError, subprocess.TimeoutExpired) as exc:
-        try:
-            tmp.unlink(missing_ok=True)
-        except OSError:
-            pass
         warnings.warn(f"compiling {_EMBREE_SOURCE} with {cc} failed ({exc}): Embree keeps its own choice of "
                       "kernels, and renders are not comparable with other CPUs'", BackendWarning, stacklevel=3)
         return None

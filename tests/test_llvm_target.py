@@ -138,9 +138,9 @@ def test_pinned_outputs_do_not_depend_on_the_host_target(runs):
     pinned, _ = runs
     first = next(iter(pinned.values()))
     assert first["mvs_finite"] > 500  # the depth map is not empty
+    same = ("images", "depth", "mvs_depth", "mvs_finite")
     for host, out in pinned.items():
         assert out["target"] == PINNED_TARGET.spec(), host
-        same = ("images", "depth", "mvs_depth", "mvs_finite")
         assert {k: out[k] for k in same} == {k: first[k] for k in same}, f"pretend host {host} gave other outputs"
 
 

@@ -150,7 +150,8 @@ def test_gate_fails_a_headline_metric_degraded_beyond_its_tolerance(committed, m
     bad_sign = -1.0 if entry.higher_is_better else 1.0
     # the method's mean over its cases moves by the change / its number of cases: flagged too where that is beyond
     # the mean's own tolerance (the mean varies less than one case, so its tolerance is tighter)
-    cases = ref.loc[(ref["method"] == entry.method) & (ref["metric"] == metric) & (ref["case"] != "mean"), "case"].nunique()
+    own = (ref["method"] == entry.method) & (ref["metric"] == metric) & (ref["case"] != "mean")
+    cases = ref.loc[own, "case"].nunique()
     mean_tol = {(t.method, t.case, t.metric): t.tolerance for t in tolerances.entries}.get(
         (entry.method, "mean", metric))
     for factor, fails in ((1.05, True), (0.95, False), (-5.0, False)):  # beyond, within, an improvement
