@@ -26,9 +26,15 @@ from typing import Literal, Protocol, runtime_checkable
 
 from plantbench.errors import InputError, PlantbenchError
 
-__all__ = ["Method", "ExternalCommand", "INPUT_KINDS", "method_from_spec", "MethodFailed"]
+__all__ = ["Method", "ExternalCommand", "INPUT_KINDS", "method_from_spec", "MethodFailed", "ORACLE_CLOUD",
+           "split_cloud"]
 
 INPUT_KINDS = ("views", "scan", "points")
+
+ORACLE_CLOUD = "@oracle"
+"""Suffix of a suite's method entry (``livny@oracle``): the point-cloud method on the mvs stage's oracle cloud (exact
+depth, its default noise, fused as the estimated depth is) beside its cells on the mvs cloud: the stage-wise
+attribution of issue 25 within one run. Such a cell reads ground truth through its cloud: it is marked an oracle."""
 
 
 class MethodFailed(PlantbenchError):
@@ -75,9 +81,19 @@ class ExternalCommand:
             raise MethodFailed(f"{self.name} exited {proc.returncode}: {proc.stderr.strip()[-2000:]}")
 
 
+def split_cloud(spec: str) -> tuple[str, bool]:
+    """(the method spec, whether it asks for the oracle cloud) of a suite's method entry: ``"livny@oracle"`` ->
+    ``("livny", True)``, ``"livny"`` -> ``("livny", False)``. A ``cmd:`` spec is never split (its command line may
+    hold any text)."""
+    if not spec.startswith("cmd:") and spec.endswith(ORACLE_CLOUD):
+        return spec[: -len(ORACLE_CLOUD)], True
+    return spec, False
+
+
 def method_from_spec(spec: str):
     """A registered method name, ``cmd:COMMAND`` for an external command, or ``ladder:RUNG`` for a rung of the
-    calibration ladder (:mod:`plantbench.methods.ladder`)."""
+    calibration ladder (:mod:`plantbench.methods.ladder`). A suite's ``NAME@oracle`` entry is resolved by the runner
+    (:func:`split_cloud`), not here."""
     if spec.startswith("cmd:"):
         return ExternalCommand(spec[4:])
     if spec.startswith("ladder:"):

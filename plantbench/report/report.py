@@ -356,13 +356,13 @@ def mark_oracles(table, run_dir: Path):
     registry's declaration) renamed 'NAME (oracle)', so that no table shows it unmarked."""
     oracles = read_run_meta(run_dir).get("oracles")
     if oracles is None:
-        from plantbench.methods.api import method_from_spec
+        from plantbench.methods.api import method_from_spec, split_cloud
         from plantbench.methods.inputs import is_oracle
 
         oracles = []
         for name in table["method"].unique():
             try:
-                if is_oracle(method_from_spec(name)):
+                if split_cloud(name)[1] or is_oracle(method_from_spec(name)):
                     oracles.append(name)
             except PlantbenchError:
                 pass

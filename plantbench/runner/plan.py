@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from plantbench.methods.api import ExternalCommand, method_from_spec
+from plantbench.methods.api import ORACLE_CLOUD, ExternalCommand, method_from_spec, split_cloud
 from plantbench.paths import project_root
 from plantbench.suites import Suite, apply_override
 
@@ -211,7 +211,7 @@ def make_plan(suite: Suite, methods: list[str] | None = None, *, dataset: tuple[
     from plantbench.errors import InputError
 
     method_names = methods or suite.methods
-    resolved = {name: method_from_spec(name) for name in method_names}
+    resolved = {name: _resolve(name, suite) for name in method_names}
     variants = [(None, suite)]
     if suite.sweep is not None:
         variants = [(v, apply_override(suite, level)) for v, level in suite.sweep.levels()]
@@ -237,6 +237,20 @@ def make_plan(suite: Suite, methods: list[str] | None = None, *, dataset: tuple[
                 seen.add(case.id)
                 _method_jobs(plan, s, resolved, case, sweep_value, version_code)
     return plan
+
+
+def _resolve(name: str, suite: Suite):
+    """The method of a suite's method entry; ``NAME@oracle`` only for a point-cloud method of a views suite."""
+    from plantbench.errors import InputError
+
+    spec, oracle_cloud = split_cloud(name)
+    method = method_from_spec(spec)
+    if oracle_cloud and (method.inputs != "points" or suite.source == "scan"):
+        why = (f"{spec} reads {method.inputs}, not a point cloud" if method.inputs != "points"
+               else f"suite {suite.name} reconstructs from the scan")
+        raise InputError(f"method {name!r}: {ORACLE_CLOUD} runs a point-cloud method on the mvs stage's oracle "
+                         f"cloud; {why}")
+    return method
 
 
 @dataclass(frozen=True)
@@ -320,18 +334,23 @@ def _folder_case(plan: Plan, s: Suite, case_set, sweep_value, version_code: dict
 def _method_jobs(plan: Plan, s: Suite, resolved: dict, case: _Case, sweep_value, version_code: dict) -> None:
     """Each method's job on ``case`` (after the shared points job its 'points' methods read), its metrics job and
     its cell."""
-    points_key = None
+    points_keys: dict[bool, str] = {}  # oracle cloud? -> its points job
     for name, method in resolved.items():
+        spec, oracle_cloud = split_cloud(name)
         deps = [case.key]
+        points_key = None
         if method.inputs == "points":
-            if points_key is None:
-                points_key = _points_job(plan, s, case.key, case.seed, case.hint_species, version_code, case.hint)
+            if oracle_cloud not in points_keys:
+                points_keys[oracle_cloud] = _points_job(plan, s, case.key, case.seed, case.hint_species, version_code,
+                                                        case.hint, oracle_cloud=oracle_cloud)
+            points_key = points_keys[oracle_cloud]
             deps.append(points_key)
-        options = s.method_options.get(name, {})
+        options = s.method_options.get(name, s.method_options.get(spec, {}))
+        # keyed by the method spec: 'livny@oracle' here and 'livny' of a suite whose mvs stage is the oracle share it
         recon_key = plan.add(Job("method", content_hash(
-            ["method", name, _method_code_hash(method), deps, options, case.seed, case.hint_species, case.hint,
+            ["method", spec, _method_code_hash(method), deps, options, case.seed, case.hint_species, case.hint,
              version_code["runner"], version_code["llvm"]]),
-            {"method": name, "case": case.key, "points": points_key if method.inputs == "points" else None,
+            {"method": spec, "case": case.key, "points": points_key,
              "seed": case.seed, "species": case.hint_species, "options": options},
             deps=tuple(deps), timeout_s=s.timeout_s))
         metrics_key = plan.add(Job("metrics", content_hash(
@@ -349,13 +368,17 @@ def _hint_hash(species: str) -> str:
     return hashlib.sha256(hints.get(species).read_bytes()).hexdigest()[:16]
 
 
-def _points_job(plan: Plan, s: Suite, case_key: str, seed: int, species: str, version_code: dict, hint: str) -> str:
-    """The point cloud that 'points' methods reconstruct from: the mvs cloud of the views, or the scan."""
+def _points_job(plan: Plan, s: Suite, case_key: str, seed: int, species: str, version_code: dict, hint: str,
+                *, oracle_cloud: bool = False) -> str:
+    """The point cloud that 'points' methods reconstruct from: the mvs cloud of the views, or the scan;
+    ``oracle_cloud``: the mvs stage's oracle cloud (its options with ``depth = "oracle"``)."""
     if s.source == "scan":
         return plan.add(Job("points", content_hash(["points", "scan", case_key, version_code["runner"]]),
                             {"source": "scan", "case": case_key}, deps=(case_key,), timeout_s=s.timeout_s))
     mvs = method_from_spec("mvs")
     options = s.method_options.get("mvs", {})
+    if oracle_cloud:
+        options = {**options, "depth": "oracle"}
     recon = plan.add(Job("method", content_hash(
         ["method", "mvs", _method_code_hash(mvs), [case_key], options, seed, species, hint, version_code["runner"],
          version_code["llvm"]]),

@@ -66,14 +66,16 @@ def oracle_methods(suite: Suite, methods: list[str]) -> list[str]:
     """The methods of a run that read ground truth with the suite's options (marked in every table): oracles
     themselves, and the 'points' methods of a views suite whose mvs stage is one (its oracle depth makes their
     cloud)."""
-    from plantbench.methods.api import method_from_spec
+    from plantbench.methods.api import method_from_spec, split_cloud
     from plantbench.methods.inputs import is_oracle
 
     cloud_is_oracle = suite.source != "scan" and is_oracle(method_from_spec("mvs"), suite.method_options.get("mvs", {}))
     out = []
     for m in methods:
-        method = method_from_spec(m)
-        if is_oracle(method, suite.method_options.get(m, {})) or (cloud_is_oracle and method.inputs == "points"):
+        spec, oracle_cloud = split_cloud(m)
+        method = method_from_spec(spec)
+        options = suite.method_options.get(m, suite.method_options.get(spec, {}))
+        if is_oracle(method, options) or ((cloud_is_oracle or oracle_cloud) and method.inputs == "points"):
             out.append(m)
     return out
 

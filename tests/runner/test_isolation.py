@@ -191,3 +191,42 @@ def test_methods_on_an_oracle_cloud_are_marked_oracles():
                            ("scan", {"gt", "prior"})):
         s = load_suite(name)
         assert set(oracle_methods(s, list(s.methods))) == expected, name
+
+
+def test_oracle_cloud_cells_read_the_mvs_stage_oracle_cloud():
+    # 'livny@oracle' in a views suite: livny on the points job of mvs with depth = "oracle" (the suite's other mvs
+    # options kept), marked an oracle; the same method job as plain 'livny' in a suite whose mvs stage is the oracle
+    # (multiview_oracle's cache serves the quick-style cells); plain 'livny' keeps the estimated cloud
+    from plantbench.errors import InputError
+    from plantbench.methods.api import split_cloud
+    from plantbench.runner.plan import make_plan
+    from plantbench.runner.run import oracle_methods
+    from plantbench.suites import Suite
+
+    base = {"name": "t", "description": "t", "cases": [{"species": "laurel", "seeds": [1], "scale": 0.3}],
+            "capture": {"views": 4, "width": 64, "height": 64}, "method_options": {"mvs": {"noise": 0.001}}}
+    s = Suite.model_validate({**base, "methods": ["mvs", "livny", "livny@oracle", "prior"]})
+    plan = make_plan(s)
+    cells = {c.method: c for c in plan.cells}
+    assert set(cells) == {"mvs", "livny", "livny@oracle", "prior"}
+
+    def cloud_options(cell):
+        recon = plan.jobs[cell.recon_key]
+        points = plan.jobs[recon.params["points"]]
+        return plan.jobs[points.params["recon"]].params["options"]
+
+    assert cloud_options(cells["livny@oracle"]) == {"noise": 0.001, "depth": "oracle"}
+    assert cloud_options(cells["livny"]) == {"noise": 0.001}
+    assert plan.jobs[cells["livny@oracle"].recon_key].params["method"] == "livny"
+    assert set(oracle_methods(s, list(s.methods))) == {"livny@oracle", "prior"}
+
+    oracle_suite = Suite.model_validate({**base, "methods": ["livny"],
+                                         "method_options": {"mvs": {"noise": 0.001, "depth": "oracle"}}})
+    assert make_plan(oracle_suite).cells[0].recon_key == cells["livny@oracle"].recon_key
+
+    assert split_cloud("cmd:tool {capture} {out} --x@oracle") == ("cmd:tool {capture} {out} --x@oracle", False)
+    for methods, source, why in ((["mvs@oracle"], "views", "reads views"), (["gt@oracle"], "views", "reads"),
+                                 (["livny@oracle"], "scan", "reconstructs from the scan")):
+        bad = Suite.model_validate({**base, "methods": methods, "source": source})
+        with pytest.raises(InputError, match=why):
+            make_plan(bad)
