@@ -99,9 +99,16 @@ class GuoParams:
     """... this many times the median of that distance [S]."""
 
     # --- roots (section 5.3, Fig. 9)
-    root_slab: float = 0.1
+    root_slab: float = 0.05
     """Points lower than this fraction of the height are projected on the ground plane for the density map (the
-    stems' bases; the crown's projection would otherwise mask them) [S]."""
+    stems' bases; the crown's projection would otherwise mask them) [S: at 0.1 the low crown of the cercis shrub
+    and the laurel's lowest leaves filled the slab: 30 roots for the cercis's 5 stems, the laurel's 5 cm off its
+    trunk, on their exact-depth clouds; at 0.05 6 roots (5 within 1.0-2.7 cm) and 0.2 cm]."""
+    root_central: float = 0.4
+    """... and, for a single-stem species, within this fraction of the crown radius (90th percentile of the points'
+    horizontal distances from their median) of the plant's centre, when at least 3 slab points are: branch tips
+    bending down to the ground at the crown's rim are not its stem (the stems of a multi-stem shrub may stand apart)
+    [S: the same fraction as reference_impl.common.roots.find_roots]."""
     root_cell: float = 1.0
     """Density map cell, in internode lengths [S]."""
     root_min_density: float = 0.25

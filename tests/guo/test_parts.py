@@ -76,6 +76,37 @@ def test_trunk_radius_from_a_cylinder(rng):
     assert axis[0, 2] > 0.98
 
 
+def test_a_thick_trunk_is_one_root_on_its_axis(rng):
+    # a 0.44 m trunk's bark projects to a ring 18 cells across: one cluster, centred on the axis (a window around
+    # the ring's densest cell put the root on the bark), and the circle fit gives its radius
+    n = 6000
+    a = rng.uniform(0, 2 * np.pi, n)
+    z = rng.random(n) * 1.0
+    pts = np.c_[1.0 + 0.44 * np.cos(a), 2.0 + 0.44 * np.sin(a), z] + rng.normal(0, 0.003, (n, 3))
+    res = density_roots(pts[:, :2], 0.05)
+    assert len(res.centroids) == 1
+    np.testing.assert_allclose(res.centroids[0], [1.0, 2.0], atol=0.03)
+    base, axis, radius = root_axes_and_radii(pts, pts[:, 2], res.centroids, np.zeros(1), height=10.0,
+                                             fit_height=0.06, fallback=0.05)
+    assert abs(radius[0] - 0.44) < 0.02
+    np.testing.assert_allclose(base[0, :2], [1.0, 2.0], atol=0.01)
+
+
+def test_leaves_beside_a_thin_stem_do_not_tilt_it(rng):
+    # a vertical 2.5 cm stem with a dense leaf cluster 6 cm to one side in the upper half of the fit band: the
+    # axis comes from the points near the fitted circle (the band's centroids would tilt it towards the leaves)
+    n = 800
+    a = rng.uniform(0, 2 * np.pi, n)
+    stem = np.c_[0.025 * np.cos(a), 0.025 * np.sin(a), rng.random(n) * 0.1] + rng.normal(0, 0.0005, (n, 3))
+    leaves = np.c_[0.06 + rng.normal(0, 0.01, (600, 2)), rng.uniform(0.035, 0.06, 600)]
+    pts = np.concatenate([stem, leaves])
+    base, axis, radius = root_axes_and_radii(pts, pts[:, 2], np.array([[0.0, 0.0]]), np.zeros(1), height=1.0,
+                                             fit_height=0.06, fallback=0.05)
+    assert np.degrees(np.arccos(axis[0, 2])) < 3.0
+    assert abs(radius[0] - 0.025) < 0.003
+    np.testing.assert_allclose(base[0, :2], [0.0, 0.0], atol=0.003)
+
+
 def test_poisson_disk_samples_fill_the_hull(rng):
     pts = rng.normal(size=(500, 3))
     samples, spacing = poisson_disk_in_hull(pts, 0.3, rng)
