@@ -103,7 +103,7 @@ class GuoParams:
     """Points lower than this fraction of the height are projected on the ground plane for the density map (the
     stems' bases; the crown's projection would otherwise mask them) [S: at 0.1 the low crown of the cercis shrub
     and the laurel's lowest leaves filled the slab: 30 roots for the cercis's 5 stems, the laurel's 5 cm off its
-    trunk, on their exact-depth clouds; at 0.05 6 roots (5 within 1.0-2.7 cm) and 0.2 cm]."""
+    trunk, on their exact-depth clouds; at 0.05 6 roots (5 within 2.2-5.1 cm) and 0.2 cm]."""
     root_central: float = 0.4
     """... and, for a single-stem species, within this fraction of the crown radius (90th percentile of the points'
     horizontal distances from their median) of the plant's centre, when at least 3 slab points are: branch tips
