@@ -131,7 +131,7 @@ MEAN = "mean"
 def cell_values(table, metrics: tuple[str, ...] = HEADLINE) -> dict[tuple[str, str, str], float]:
     """(method, case, metric) -> value of each headline metric in ``table``, NaN where the cell failed; and
     (method, :data:`MEAN`, metric) -> the mean over the method's cases (NaN when one of them failed)."""
-    rows = table[table["metric"].isin(metrics)]
+    rows = table[table["metric"].isin(metrics) & (table["case"] != MEAN)]  # a table's own mean rows are recomputed
     out = {}
     for r in rows.itertuples():
         v = float(r.value) if r.status == "ok" and r.value is not None else float("nan")
