@@ -87,9 +87,9 @@ def _roots_of_plant(positions, heights, graph, slab, min_fraction, central_fract
 
 
 def stem_radius(points: np.ndarray, base: np.ndarray, direction: np.ndarray, *, length: float, max_radius: float,
-                fallback: float, windows: int = 5, on_bark: bool = False) -> tuple[float, np.ndarray]:
-    """Trunk radius at a stem base from the cloud (cylinder fit along ``direction``); ``fallback`` when the fit has
-    too few points. Returns ``(radius, axis point at the base)``.
+                fallback: float | None, windows: int = 5, on_bark: bool = False) -> tuple[float, np.ndarray] | None:
+    """Trunk radius at a stem base from the cloud (cylinder fit along ``direction``). Returns ``(radius, axis point at
+    the base)``; where no circle fits, ``(fallback, base)``, or None when ``fallback`` is None.
 
     The fit is repeated in windows around the axis doubling from ``max_radius / 2^(windows - 1)`` to ``max_radius``;
     the answer is the smallest window whose circle lies well inside it (|centre offset| + r <= 0.8 window) and agrees
@@ -115,7 +115,7 @@ def stem_radius(points: np.ndarray, base: np.ndarray, direction: np.ndarray, *, 
             return again
     if first is not None:
         return first
-    return float(fallback), np.asarray(base, float)
+    return None if fallback is None else (float(fallback), np.asarray(base, float))
 
 
 def _on_circle(points: np.ndarray, centre: np.ndarray, direction: np.ndarray, r: float, length: float

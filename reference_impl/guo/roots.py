@@ -97,11 +97,10 @@ def root_axes_and_radii(points: np.ndarray, heights: np.ndarray, roots_xy: np.nd
     length = (fit_height - 0.01) * height
     for r in range(k):
         reach = min(0.1 * height, half_gap[r])
-        rad, centre = stem_radius(points, base[r] + up * 0.01 * height, up, length=length, max_radius=reach,
-                                  fallback=fallback)
-        if np.array_equal(centre, base[r] + up * 0.01 * height):  # no circle: a vertical stem of the fallback radius
-            radii[r] = rad
+        fit = stem_radius(points, base[r] + up * 0.01 * height, up, length=length, max_radius=reach, fallback=None)
+        if fit is None:  # no circle: a vertical stem of the fallback radius
             continue
+        rad, centre = fit
         # stem axis: the line through the centroids of the lower and upper halves of the band, from the points
         # within twice the fitted radius of the vertical
         near = lowband & (np.linalg.norm(points[:, :2] - centre[:2], axis=1) < 2.0 * rad)
