@@ -239,6 +239,11 @@ def make_plan(suite: Suite, methods: list[str] | None = None, *, dataset: tuple[
     return plan
 
 
+def method_options(suite: Suite, name: str) -> dict:
+    """The suite's ``[method_options]`` of a method entry: its own, or for ``NAME@oracle`` those of NAME."""
+    return suite.method_options.get(name, suite.method_options.get(split_cloud(name)[0], {}))
+
+
 def _resolve(name: str, suite: Suite):
     """The method of a suite's method entry; ``NAME@oracle`` only for a point-cloud method of a views suite."""
     from plantbench.errors import InputError
@@ -345,7 +350,7 @@ def _method_jobs(plan: Plan, s: Suite, resolved: dict, case: _Case, sweep_value,
                                                         case.hint, oracle_cloud=oracle_cloud)
             points_key = points_keys[oracle_cloud]
             deps.append(points_key)
-        options = s.method_options.get(name, s.method_options.get(spec, {}))
+        options = method_options(s, name)
         # keyed by the method spec: 'livny@oracle' here and 'livny' of a suite whose mvs stage is the oracle share it
         recon_key = plan.add(Job("method", content_hash(
             ["method", spec, _method_code_hash(method), deps, options, case.seed, case.hint_species, case.hint,

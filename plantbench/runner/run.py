@@ -68,14 +68,14 @@ def oracle_methods(suite: Suite, methods: list[str]) -> list[str]:
     cloud)."""
     from plantbench.methods.api import method_from_spec, split_cloud
     from plantbench.methods.inputs import is_oracle
+    from plantbench.runner.plan import method_options
 
     cloud_is_oracle = suite.source != "scan" and is_oracle(method_from_spec("mvs"), suite.method_options.get("mvs", {}))
     out = []
     for m in methods:
         spec, oracle_cloud = split_cloud(m)
         method = method_from_spec(spec)
-        options = suite.method_options.get(m, suite.method_options.get(spec, {}))
-        if is_oracle(method, options) or ((cloud_is_oracle or oracle_cloud) and method.inputs == "points"):
+        if is_oracle(method, method_options(suite, m)) or ((cloud_is_oracle or oracle_cloud) and method.inputs == "points"):
             out.append(m)
     return out
 

@@ -14,10 +14,12 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
+from scipy.spatial import cKDTree
 
+from plantbench.geometry.vectors import perpendicular
 from reference_impl.common.radii import fit_trunk_radius
 
-__all__ = ["plant_groups", "find_roots", "stem_radius", "stem_radii", "anchor_roots"]
+__all__ = ["plant_groups", "find_roots", "stem_radius", "stem_radii", "half_gaps", "anchor_roots"]
 
 
 def plant_groups(positions: np.ndarray, cell: float) -> np.ndarray:
@@ -104,18 +106,29 @@ def stem_radius(points: np.ndarray, base: np.ndarray, direction: np.ndarray, *, 
     hollow bark ring, not a circle through two stems or a ring of thin stems [S: the lowest point of wp_oak's 44 cm
     trunk gave a 4.3 cm circle on its mvs cloud].
     """
-    first = _nested_fit(points, base, direction, length, max_radius, windows)
-    r_all, c_all = (fit_trunk_radius(points, base, direction, length=length, max_radius=max_radius, strict=True)
-                    if on_bark else (float("nan"), base))
-    if np.isfinite(r_all) and r_all > 0:
-        again = _nested_fit(points, c_all, direction, length, max_radius, windows)
-        if again is not None and (first is None or again[0] > first[0]) \
-                and abs(np.linalg.norm(_perp(base - again[1], direction)) - again[0]) <= 0.25 * again[0] \
-                and _bark_ring(*_on_circle(points, again[1], direction, again[0], length)):
-            return again
-    if first is not None:
-        return first
-    return None if fallback is None else (float(fallback), np.asarray(base, float))
+    fit = _nested_fit(points, base, direction, length, max_radius, windows)
+    if on_bark:
+        ring = _ring_fit(points, base, direction, length, max_radius, windows)
+        if ring is not None and (fit is None or ring[0] > fit[0]):
+            fit = ring
+    if fit is None and fallback is not None:
+        return float(fallback), np.asarray(base, float)
+    return fit
+
+
+def _ring_fit(points: np.ndarray, base: np.ndarray, direction: np.ndarray, length: float, max_radius: float,
+              windows: int) -> tuple[float, np.ndarray] | None:
+    """:func:`stem_radius`'s windows about the centre of the largest window's circle, where ``base`` lies on the
+    circle they find and :func:`_bark_ring` takes the points around it for one stem's bark; else None."""
+    r_all, c_all = fit_trunk_radius(points, base, direction, length=length, max_radius=max_radius, strict=True)
+    if not (np.isfinite(r_all) and r_all > 0):
+        return None
+    fit = _nested_fit(points, c_all, direction, length, max_radius, windows)
+    if fit is None:
+        return None
+    r, centre = fit
+    on_it = abs(np.linalg.norm(_perp(base - centre, direction)) - r) <= 0.25 * r
+    return fit if on_it and _bark_ring(*_on_circle(points, centre, direction, r, length)) else None
 
 
 def _on_circle(points: np.ndarray, centre: np.ndarray, direction: np.ndarray, r: float, length: float
@@ -133,8 +146,7 @@ def _on_circle(points: np.ndarray, centre: np.ndarray, direction: np.ndarray, r:
     if not sel.any():
         return 0.0, 0.0, 1.0
     on = sel & (np.abs(d - r) <= 0.2 * r)
-    u = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
-    u /= np.linalg.norm(u)
+    u = perpendicular(axis[None, :])[0]
     v = np.cross(axis, u)
     sector = np.floor((np.arctan2(perp[on] @ v, perp[on] @ u) + np.pi) / (2 * np.pi) * 36).astype(np.int64) % 36
     return float(on.sum() / sel.sum()), len(np.unique(sector)) / 36.0, float(np.mean(d[sel] < 0.6 * r))
@@ -172,18 +184,23 @@ def stem_radii(points: np.ndarray, roots: np.ndarray, axes: np.ndarray, *, offse
     the root along its stem axis, within ``max_radius`` and half the distance to the nearest other root (a stem is
     not wider than the gap to its neighbour). roots, axes : (k, 3) root positions and unit stem axes."""
     roots = np.asarray(roots, float)
-    reach = np.full(len(roots), float(max_radius))
-    if len(roots) > 1:
-        from scipy.spatial import cKDTree
-
-        gap, _ = cKDTree(roots[:, :2]).query(roots[:, :2], k=2)
-        reach = np.minimum(reach, 0.5 * gap[:, 1])
+    reach = np.minimum(float(max_radius), half_gaps(roots[:, :2]))
     out = []
     for root, axis, r_max in zip(roots, axes, reach, strict=True):
         rad, _ = stem_radius(points, root - axis * offset, axis, length=length, max_radius=r_max,
                              fallback=fallback, on_bark=True)
         out.append(max(rad, min_radius))
     return np.asarray(out)
+
+
+def half_gaps(xy: np.ndarray) -> np.ndarray:
+    """(k,) half the distance from each of ``xy`` (k, 2) to the nearest other one (inf for a single point): how wide
+    a stem at each root may be."""
+    xy = np.asarray(xy, float)
+    if len(xy) < 2:
+        return np.full(len(xy), np.inf)
+    gap, _ = cKDTree(xy).query(xy, k=2)
+    return 0.5 * gap[:, 1]
 
 
 def _perp(v: np.ndarray, axis: np.ndarray) -> np.ndarray:

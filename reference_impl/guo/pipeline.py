@@ -119,10 +119,11 @@ def prepare(points: np.ndarray, rng: np.random.Generator, params: GuoParams = Gu
     # roots and trunk radii
     t0 = time.perf_counter()
     slab = hgt < params.root_slab * height
-    offset = np.hypot(*(plant[:, :2] - np.median(plant[:, :2], axis=0)).T)
-    central = offset <= params.root_central * np.percentile(offset, 90)
-    if prior.roots == 1 and (slab & central).sum() >= 3:
-        slab &= central
+    if prior.roots == 1:  # a single stem stands at the crown's centre
+        offset = np.hypot(*(plant[:, :2] - np.median(plant[:, :2], axis=0)).T)
+        central = slab & (offset <= params.root_central * np.percentile(offset, 90))
+        if central.sum() >= 3:
+            slab = central
     if slab.sum() < 3:
         slab = hgt <= np.partition(hgt, min(2, len(hgt) - 1))[min(2, len(hgt) - 1)]
     clusters = density_roots(plant[slab, :2], params.root_cell * ell, k=prior.roots,

@@ -25,9 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
-from scipy.spatial import cKDTree
 
-from reference_impl.common.roots import stem_radius
+from reference_impl.common.roots import half_gaps, stem_radius
 
 __all__ = ["RootCluster", "density_roots", "root_axes_and_radii"]
 
@@ -85,11 +84,7 @@ def root_axes_and_radii(points: np.ndarray, heights: np.ndarray, roots_xy: np.nd
     """
     k = len(roots_xy)
     base = np.c_[roots_xy, ground_z]
-    if k > 1:
-        dd, _ = cKDTree(roots_xy).query(roots_xy, k=2)
-        half_gap = 0.5 * dd[:, 1]
-    else:
-        half_gap = np.full(k, np.inf)
+    half_gap = half_gaps(roots_xy)
     axes = np.tile([0.0, 0.0, 1.0], (k, 1))
     radii = np.full(k, float(fallback))
     lowband = (heights > 0.01 * height) & (heights < fit_height * height)
@@ -112,10 +107,9 @@ def root_axes_and_radii(points: np.ndarray, heights: np.ndarray, roots_xy: np.nd
             ax = b - a
             if np.linalg.norm(ax) > 1e-9 and ax[2] > 0.5 * np.linalg.norm(ax):
                 axes[r] = ax / np.linalg.norm(ax)
-        if not np.array_equal(axes[r], up):
-            start = np.r_[centre[:2], base[r, 2]]
-            rad, centre = stem_radius(points, start + axes[r] * 0.01 * height, axes[r], length=length,
-                                      max_radius=reach, fallback=fallback)
+                start = np.r_[centre[:2], base[r, 2]]
+                rad, centre = stem_radius(points, start + axes[r] * 0.01 * height, axes[r], length=length,
+                                          max_radius=reach, fallback=fallback)
         radii[r] = rad
         # the root sits on the ground under the fitted axis
         c = centre - axes[r] * 0.01 * height
