@@ -3,7 +3,7 @@
 import numpy as np
 from scipy.sparse import csgraph
 
-from reference_impl.common.graph import children_csr, radius_graph
+from reference_impl.common.graph import radius_graph
 from reference_impl.common.radii import murray_angle
 from reference_impl.xu.pipeline import adjust_branch_angles
 from reference_impl.xu.skeleton import bin_skeleton, probe_extend
@@ -123,10 +123,24 @@ def test_synthesis_supports_unsupported_leaves():
     assert np.nanmin(np.where(np.isfinite(d1), d1, np.nan)) < np.nanmin(np.where(np.isfinite(d0_), d0_, 10.0))
 
 
-def test_copied_section_stays_inside_the_triangle_ball():
-    """Section 4.3: the copied structure is the section defined by O'A'B'. A long side branch hanging from the path
-    O' -> A' leaves that section: only its nodes within max(|O'A'|, |O'B'|) of O' are copied (checked against a
-    brute-force walk of the subtrees)."""
+def test_synthesis_needs_two_separate_locations():
+    """Section 4.3 synthesises from a triangle OAB of two separate leaf locations: a node with a single associated
+    location, or with all of them within ``group`` of A, gets no branch (no straight twig to the location)."""
+    pos, par, locs, dens = _fork_and_leaves()
+    kw = dict(d0=0.08, interval=(20.0, 60.0), iterations=3, max_nodes=1000)
+    one = synthesize(pos, par, locs[:1], dens[:1], group=0.02, **kw)
+    assert one.branches == 0 and one.synthetic.sum() == 0 and len(one.positions) == len(pos)
+    spread = float(np.max(np.linalg.norm(locs[:, None] - locs[None], axis=2)))
+    close = synthesize(pos, par, locs, dens, group=spread + 1e-6, **kw)  # every location within group of A
+    assert close.branches == 0 and close.synthetic.sum() == 0
+    apart = synthesize(pos, par, locs, dens, group=0.02, **kw)
+    assert apart.branches >= 1 and apart.synthetic.sum() > 1  # a copied section, not a single node
+
+
+def test_copied_section_is_the_two_paths():
+    """Section 4.3: "the skeleton structure from O' to A' and B' is copied": the nodes on the paths up from A' and
+    from B' to O' (O' excluded), checked against a walk up the parent links; a side branch hanging from the path
+    O' -> A' is not copied."""
     pos = [[0, 0, 0], [0, 0, 0.5], [0, 0, 1.0], [-0.15, 0, 1.2], [-0.3, 0, 1.4], [0.3, 0, 1.4]]
     par = [-1, 0, 1, 2, 3, 2]
     prev = 3
@@ -134,20 +148,18 @@ def test_copied_section_stays_inside_the_triangle_ball():
         pos.append([-0.15 - 0.27 * i, 0.0, 1.2 - 0.02 * i])
         par.append(prev)
         prev = len(pos) - 1
-    pos, par = np.asarray(pos, float), np.asarray(par)
-    ptr, kids = children_csr(par)
-    got = section_nodes(pos, par, 2, 4, 5, ptr, kids)
-    reach = max(np.linalg.norm(pos[4] - pos[2]), np.linalg.norm(pos[5] - pos[2]))
-    # independent: the paths {3, 4} and {5}, plus side-branch nodes whose whole chain from M stays within reach
-    side = list(range(6, 11))
-    inside = []
-    for v in side:
-        if np.linalg.norm(pos[v] - pos[2]) > reach:
-            break
-        inside.append(v)
-    assert got.tolist() == sorted([3, 4, 5] + inside)
-    assert inside == [6]  # the test means something: the branch is cut after its first node
-    assert np.all(np.linalg.norm(pos[got] - pos[2], axis=1) <= reach + 1e-12)
+    par = np.asarray(par)
+
+    def walk(v, stop):
+        out = []
+        while v != stop:
+            out.append(v)
+            v = int(par[v])
+        return out
+
+    assert section_nodes(par, 2, 4, 5).tolist() == sorted(walk(4, 2) + walk(5, 2)) == [3, 4, 5]
+    # A' at the side branch's tip: the path runs through M and the side branch, B' the other child of O'
+    assert section_nodes(par, 2, 10, 5).tolist() == sorted(walk(10, 2) + walk(5, 2)) == [3, 5, 6, 7, 8, 9, 10]
 
 
 def test_prune_bare_twigs_keeps_a_quarter(rng):
@@ -218,7 +230,7 @@ def test_empty_segments_against_dense_sampling(rng):
 
 
 def test_synthesis_refuses_copies_across_empty_space():
-    """Issue 25: with the input cloud given, a copy (or twig) any of whose edges crosses empty space is refused;
+    """Issue 25: with the input cloud given, a copy any of whose edges crosses empty space is refused;
     where the cloud has points along the copy, the same synthesis goes ahead."""
     from scipy.spatial import cKDTree
 
