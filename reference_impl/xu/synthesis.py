@@ -211,9 +211,9 @@ def synthesize(positions: np.ndarray, parents: np.ndarray, locations: np.ndarray
     O'A'B' (its two paths, :func:`section_nodes`) with the similarity transform mapping O'A'B' onto OAB, hung from
     O. A node whose associated locations hold no two separate ones (a single location, or all within ``group`` of
     A) gets nothing, as the paper synthesises from a triangle OAB only [an earlier straight twig O -> A of ours made
-    70-92 % of the synthesised branches on the multiview suite's mvs clouds, each a chain of its own]. The table holds the scanned skeleton's triangles
-    (computed once, as the paper pre-calculates them). Stops early when everything is supported or at
-    ``max_nodes`` [S: memory bound].
+    70-92 % of the synthesised branches on the multiview suite's mvs clouds, each a chain of its own]. The table
+    holds the scanned skeleton's triangles (computed once, as the paper pre-calculates them). Stops early when
+    everything is supported or at ``max_nodes`` [S: memory bound].
 
     Two limits of ours (issue 25: synthesis copies only where the cloud lacks branch points, never across the crown,
     and leaves no edge through empty space) [S]: a location is associated only with a feasible node within
