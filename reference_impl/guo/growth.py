@@ -342,8 +342,8 @@ def grow(markers: np.ndarray, weights: np.ndarray, root_positions: np.ndarray, r
     Each cycle t: d_i from Eq. 6-7 (:func:`influence_distance`); occupancy removes the markers within d_k of the
     nodes; every bud perceives its markers (the radius widened across gaps); the buds that bud fate lets grow emit
     their shoots (Eq. 9); then the radii follow Eq. 5 and thin branches that stopped growing are shed. Growth stops
-    when no marker or no bud is left, when no bud perceives a marker, before the skeleton exceeds ``max_nodes`` or
-    after ``max_iterations`` cycles.
+    when no marker or no bud is left, when no bud perceives a marker or bud fate lets none grow, before the skeleton
+    exceeds ``max_nodes`` or after ``max_iterations`` cycles.
     """
     rules = _Rules.of(markers, height, prior, params)
     shed_radius = params.shed_radius * prior.tip_radius
@@ -370,6 +370,9 @@ def grow(markers: np.ndarray, weights: np.ndarray, root_positions: np.ndarray, r
             history.append(entry | {"lit": 0, "new": 0, "shed": 0})
             break
         lit, v, nmet = _shoots(mk[fed], mw[fed], owner[fed], bud_pos, bud_dir, is_api, rho, d_use, rules, params)
+        if len(lit) == 0:  # only lateral buds are lit, none with a share of a metamer (lateral_vigour > bh_alpha)
+            history.append(entry | {"lit": 0, "new": 0, "shed": 0, "stopped": "no bud grows"})
+            break
         if nodes.n + int(nmet.sum()) > params.max_nodes:
             history.append(entry | {"lit": len(lit), "new": 0, "shed": 0, "stopped": "max_nodes"})
             break

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from plantbench.geometry.vectors import levels
 from reference_impl.guo.growth import (
@@ -101,6 +102,30 @@ def test_grow_follows_a_vertical_line_and_stops():
     np.testing.assert_allclose(np.linalg.norm(out.positions[c] - out.positions[out.parents[c]], axis=1), 0.05)
 
 
+def test_growth_follows_both_limbs_of_a_fork(rng):
+    """A trunk forking into two limbs 70 deg apart, sampled every centimetre: the default perception radius (4 l)
+    keeps every node within 7 cm of the limbs, while Eq. 7's range [6 l, 12 l] lets a bud below the fork perceive
+    both limbs and grow up between them (the averaging the defaults avoid, docs/tuning/guo.md)."""
+    fork = np.array([0.0, 0.0, 0.5])
+    tips = fork + np.array([[np.sin(np.radians(35)), 0.0, np.cos(np.radians(35))],
+                            [-np.sin(np.radians(35)), 0.0, np.cos(np.radians(35))]])
+
+    def polyline(step):
+        parts = [np.linspace([0.0, 0.0, 0.0], fork, int(0.5 / step) + 1)]
+        parts += [np.linspace(fork, tip, int(1.0 / step) + 1) for tip in tips]
+        return np.concatenate(parts)
+
+    markers = polyline(0.01) + rng.normal(scale=0.003, size=(len(polyline(0.01)), 3))
+    limbs = cKDTree(polyline(0.001))
+    far = {}
+    for label, params in (("default", GuoParams()), ("wide", GuoParams(rho_min=6.0, rho_max=12.0))):
+        g = grow(markers, np.ones(len(markers)), np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]), np.array([0.02]),
+                 float(tips[0, 2]), PRIOR, params)
+        far[label] = limbs.query(g.positions)[0].max()
+    assert far["default"] < 0.07
+    assert far["wide"] > 0.09
+
+
 def test_two_roots_compete_and_growth_crosses_gaps(rng):
     # two stems, each with a crown cluster above it; the stems' markers stop at 0.6 m and resume at 1.2 m (a gap)
     markers, roots = [], np.array([[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
@@ -147,3 +172,7 @@ def test_borchert_honda_thins_the_branching(rng):
         tips.append(int(np.sum(np.bincount(out.parents[out.parents >= 0], minlength=len(out.parents)) == 0)))
         assert out.positions[:, 2].max() > 1.6
     assert tips[1] < tips[0]
+    # a share above bh_alpha's mean vigour: once the apical buds are unlit no lateral bud may grow, and growth stops
+    out = grow(*args, GuoParams(lateral_vigour=10.0))
+    assert out.history[-1].get("stopped") == "no bud grows"
+    assert np.sum(out.lateral) == 0
