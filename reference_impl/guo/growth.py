@@ -15,7 +15,9 @@ Space colonisation (Palubicki et al. 2009, with Guo et al. 2018's three adaptati
   d_k = 0.5 d_i); a marker inside several cones goes to the closest bud (roots compete for the same markers);
 - d_i = rho_t l (Guo et al. 2018) or floor(rho_t) l (Guo et al. 2017) from the logistic model:
   H_t = H_max / (1 + (H_max / H_0 - 1) exp(-rho_0 t)) (Eq. 6) in internodes, H_max = K (K l = the plant's height),
-  rho_t = dH_t/dt (Eq. 7);
+  rho_t = dH_t/dt (Eq. 7), clamped to [rho_min, rho_max] (the defaults clamp it to 4: d_i = 4 l on every plant, the
+  bottom of the range Guo et al. quote, because a wider cone aims shoots between neighbouring limbs;
+  :class:`~reference_impl.guo.params.GuoParams`, docs/tuning/guo.md);
 - growth direction Eq. 9: V_A = V_default + alpha V_opt + beta V_tropism, V_opt the weighted mean of the unit
   vectors from the bud to its markers (weights w_i of Eq. 8);
 - the shoot has rho_t metamers (the growth units, Table 1), but stops at the weighted centroid of its markers (the

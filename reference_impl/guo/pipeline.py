@@ -8,8 +8,8 @@
    from a cross-section circle fit (reference_impl.guo.roots);
 4. markers: the points merged per half-internode voxel with summed weights; for an occluded crown, Poisson-disk
    samples of the crown's convex hull (Fig. 8, reference_impl.guo.hull);
-5. growth: L-system 1 with space colonisation, logistic influence distance (Eq. 6-7), growth direction Eq. 9, Eq. 5
-   radii and shedding on the fly (reference_impl.guo.growth);
+5. growth: L-system 1 with space colonisation, logistic influence distance (Eq. 6-7; 4 l with the default clamp),
+   growth direction Eq. 9, Eq. 5 radii and shedding on the fly (reference_impl.guo.growth);
 6. leaves at the nodes of thin branches near the tips, placed with the species hint's leaf configuration
    (reference_impl.guo.leaves: arrangement, mean length, phi as the divergence; generic Bezier blade) before the
    skeleton is simplified, then turned about
