@@ -115,7 +115,8 @@ def test_growth_follows_both_limbs_of_a_fork(rng):
         parts += [np.linspace(fork, tip, int(1.0 / step) + 1) for tip in tips]
         return np.concatenate(parts)
 
-    markers = polyline(0.01) + rng.normal(scale=0.003, size=(len(polyline(0.01)), 3))
+    samples = polyline(0.01)
+    markers = samples + rng.normal(scale=0.003, size=samples.shape)
     limbs = cKDTree(polyline(0.001))
     far = {}
     for label, params in (("default", GuoParams()), ("wide", GuoParams(rho_min=6.0, rho_max=12.0))):
