@@ -112,7 +112,10 @@ def _load_method_entry_points(reg: Registry) -> None:
 
 
 def _load_metrics(reg: Registry) -> None:
-    import plantbench.metrics  # noqa: F401  (registers on import)
+    from plantbench.metrics.info import METRICS
+
+    for name, info in METRICS.items():
+        reg.register(name, info)
 
 
 methods: Registry = Registry("method", _load_method_entry_points)

@@ -79,3 +79,17 @@ def test_runner_and_plant_stage_hashes_leave_other_stages_out():
     assert not any(n.startswith(("plantbench.generate", "plantbench.capture", "plantbench.metrics")) for n in worker)
     plant = closure("plantbench/generate")
     assert "plantbench.io.ply" in plant and not any(n.startswith("plantbench.metrics") for n in plant)
+
+
+def test_methods_using_a_metric_helper_do_not_depend_on_the_metric_table():
+    """mvs imports plantbench.metrics.surface and guo plantbench.metrics.reprojection: adding a metric to the table
+    (plantbench.metrics.info) or a skeleton metric must not re-run them."""
+    from plantbench.paths import project_root
+    from plantbench.runner.plan import _import_closure, _module_name
+
+    for method in ("mvs", "guo"):
+        start = tuple(sorted((project_root() / "reference_impl" / method).rglob("*.py")))
+        names = {_module_name(f) for f in _import_closure(start, frozenset({"plantbench", "reference_impl"}))}
+        assert "plantbench.metrics.surface" in names
+        assert not names & {"plantbench.metrics.info", "plantbench.metrics.skeleton", "plantbench.metrics.structure",
+                            "plantbench.metrics.evaluate"}
