@@ -358,7 +358,7 @@ def calibrate(
     moved; the no-data prior; another species) with every metric, and say which metrics order them by fidelity."""
     import time
 
-    from plantbench.metrics.info import HEADLINE_FIDELITY
+    from plantbench.metrics.info import HEADLINE_FIDELITY, HEADLINE_STRUCTURE
     from plantbench.report.calibration import run_calibration, write_calibration
     from plantbench.report.gate import read_results, read_run_meta
     from plantbench.suites import load_suite
@@ -389,7 +389,9 @@ def calibrate(
     good = verdict[verdict["verdict"] == "discriminates"]
     console.print(f"{reports}/README.md: {len(good)} of {len(verdict)} metrics discriminate "
                   f"({table['case'].nunique()} plants, {time.perf_counter() - t0:.0f} s)")
+    seeing = set(verdict.loc[verdict["structure"] == "discriminates", "metric"])
     failed = [m for m in HEADLINE_FIDELITY if m not in set(good["metric"])]
+    failed += [f"{m} (structure)" for m in HEADLINE_STRUCTURE if m not in seeing]
     if failed:
         console.print(f"[red]headline metrics that do not discriminate here: {', '.join(failed)}[/red]")
 

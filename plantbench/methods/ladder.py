@@ -11,6 +11,10 @@ the runner like any method and ask of every metric whether it orders them as the
   the plant height, the wood mesh rebuilt from the moved skeleton, each leaf moved with its node;
 - ``scale-S`` (S = 1.05, 1.1, 1.25): the plant scaled by S about its root;
 - ``leaves-F%`` (F = 10, 25, 50): every leaf moved by F % of its own length in a random direction, the wood untouched;
+- ``twigs+F%`` (F = 25, 100, 400): invented twigs, F % of the plant's branch count, drawn from its own terminal
+  branches (length, angle, radii) and attached at random nodes (:func:`add_twigs`), the wood mesh rebuilt;
+- ``tangle-20%``: a fifth of the nodes re-hung on a nearby node of an unrelated branch, jumps across gaps as a
+  graph method on a noisy cloud makes them (:func:`tangle`), the wood mesh rebuilt;
 - ``prior-a``, ``prior-b``: the no-data prior (:func:`plantbench.methods.prior.grow_prior`) with seeds 0 and 1,
   scaled to the ground truth's height (seed 1 is the suite's own ``prior`` row when the case seed is 1);
 - ``other-species``: the next species of the same family in the library (by name, cyclic), grown as the prior
@@ -31,7 +35,7 @@ from plantbench.errors import InputError
 from plantbench.plant import Leaf, Plant, Skeleton, TriMesh
 
 __all__ = ["RUNGS", "Rung", "LadderMethod", "ladder_method", "build_rung", "prune", "jitter", "move_leaves",
-           "other_species"]
+           "add_twigs", "tangle", "other_species"]
 
 PREFIX = "ladder:"
 
@@ -106,6 +110,126 @@ def move_leaves(plant: Plant, fraction: float, rng: np.random.Generator) -> Plan
     return Plant(plant.skeleton, plant.branch_mesh, leaf_mesh, plant.leaf_mesh_ids, leaves, dict(plant.meta))
 
 
+def _terminal_branches(skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The plant's terminal branches (Stava chains ending at a tip): length, branching angle (radians, between the
+    chain's first edge and the edge into its fork; from the vertical for a chain starting at a root), base radius
+    (the chain's first node after its fork), tip radius and edge count, one row per branch."""
+    from plantbench.skeletons import branch_chains, chain_lengths, children_lists
+
+    kids = children_lists(skeleton)
+    chains = [c for c in branch_chains(skeleton) if not len(kids[int(c[-1])])]
+    pos, par, rad = skeleton.positions, skeleton.parents, skeleton.radii
+    if not chains:
+        raise InputError("ladder: the plant has no terminal branch to draw twigs from")
+    first = np.array([c[0] for c in chains])
+    second = np.array([c[1] for c in chains])
+    out = pos[second] - pos[first]
+    into = np.where((par[first] >= 0)[:, None], pos[first] - pos[np.maximum(par[first], 0)], [0.0, 0.0, 1.0])
+    into[np.linalg.norm(into, axis=1) == 0] = [0.0, 0.0, 1.0]
+    cos = np.sum(out * into, axis=1) / np.maximum(np.linalg.norm(out, axis=1) * np.linalg.norm(into, axis=1), 1e-300)
+    return (chain_lengths(skeleton, chains), np.arccos(np.clip(cos, -1.0, 1.0)), rad[second],
+            rad[[int(c[-1]) for c in chains]], np.array([len(c) - 1 for c in chains]))
+
+
+def add_twigs(plant: Plant, fraction: float, rng: np.random.Generator) -> Plant:
+    """The plant with invented twigs: ``fraction`` x its branch count (Stava chains) of straight twigs, each a
+    terminal branch of the plant drawn at random (its length, branching angle, base and tip radius and edge count),
+    attached at a node drawn uniformly among the nodes with children (without replacement while there are enough),
+    leaving along the drawn angle from the direction of the edge into that node at a uniform roll; radii taper
+    linearly from the base radius (at most the node's own) to the tip radius (at most the base). A twig that would
+    end below the ground leaves upwards instead (the vertical component of its direction flipped). The leaves stay;
+    the wood mesh is rebuilt."""
+    from plantbench.geometry.vectors import perpendicular, unit
+    from plantbench.skeletons import branch_chains
+
+    sk = plant.skeleton
+    n = int(round(fraction * len(branch_chains(sk))))
+    length, angle, r_base, r_tip, edges = _terminal_branches(sk)
+    inner = np.flatnonzero(sk.children_counts() > 0)
+    if n == 0 or not len(inner):
+        return plant
+    at = rng.choice(inner, size=n, replace=n > len(inner))
+    k = rng.integers(0, len(length), n)
+    roll = rng.uniform(0.0, 2 * np.pi, n)
+    pos, par = sk.positions, sk.parents
+    u = np.where((par[at] >= 0)[:, None], pos[at] - pos[np.maximum(par[at], 0)], [0.0, 0.0, 1.0])
+    u[np.linalg.norm(u, axis=1) == 0] = [0.0, 0.0, 1.0]
+    u = unit(u)
+    e1 = perpendicular(u)
+    e2 = np.cross(u, e1)
+    d = np.cos(angle[k])[:, None] * u + np.sin(angle[k])[:, None] * (np.cos(roll)[:, None] * e1
+                                                                    + np.sin(roll)[:, None] * e2)
+    below = pos[at, 2] + length[k] * d[:, 2] < 0
+    d[below, 2] *= -1
+    rb = np.minimum(r_base[k], sk.radii[at])
+    rt = np.minimum(r_tip[k], rb)
+    m = np.maximum(edges[k], 1)
+    twig = np.repeat(np.arange(n), m)
+    step = np.arange(int(m.sum())) - np.repeat(np.cumsum(m) - m, m) + 1  # 1..m along each twig
+    f = step / np.repeat(m, m)
+    new_pos = pos[at][twig] + (f * length[k][twig])[:, None] * d[twig]
+    new_rad = rb[twig] + f * (rt - rb)[twig]
+    first = step == 1
+    new_index = len(sk) + np.arange(len(twig))
+    new_par = np.where(first, at[twig], new_index - 1)
+    skeleton = Skeleton(np.concatenate([pos, new_pos]), np.concatenate([sk.radii, new_rad]),
+                        np.concatenate([par, new_par]), np.concatenate([sk.order, sk.order[at][twig] + 1]))
+    return Plant(skeleton, _rebuild_wood(skeleton), plant.leaf_mesh, plant.leaf_mesh_ids, list(plant.leaves),
+                 dict(plant.meta))
+
+
+def tangle(plant: Plant, fraction: float, rng: np.random.Generator, *, max_gap: float = 0.05,
+           candidates: int = 16) -> Plant:
+    """The plant with jumps across gaps, as a graph method on a noisy cloud makes them: ``fraction`` of its non-root
+    nodes, drawn at random and taken in that order, each re-hung on the nearest node (of its ``candidates`` nearest,
+    within ``max_gap`` x the height) of a branch (Stava chain) that is neither its own nor one joined to it at a fork
+    (its parent, sibling and child branches), unless that node descends from it (no cycle). A node without such a
+    neighbour keeps its parent. Positions, radii and leaves stay; the wood mesh is rebuilt."""
+    from scipy.spatial import cKDTree
+
+    from plantbench.skeletons import branch_chains
+
+    sk = plant.skeleton
+    chains = branch_chains(sk)
+    chain_of = np.full(len(sk), -1, np.int64)
+    for c, nodes in enumerate(chains):
+        chain_of[nodes[1:]] = c
+        if sk.parents[nodes[0]] < 0:
+            chain_of[nodes[0]] = c
+    fork_chain = np.array([chain_of[c[0]] for c in chains])  # the branch each branch hangs from (-1: none)
+    joined: list[set[int]] = [{c} for c in range(len(chains))]
+    for c in range(len(chains)):
+        if fork_chain[c] >= 0:
+            joined[c].add(int(fork_chain[c]))
+            joined[int(fork_chain[c])].add(c)
+    by_fork: dict[int, list[int]] = {}
+    for c, nodes in enumerate(chains):
+        by_fork.setdefault(int(nodes[0]), []).append(c)
+    for siblings in by_fork.values():
+        for c in siblings:
+            joined[c].update(siblings)
+    movable = np.flatnonzero(sk.parents >= 0)
+    chosen = rng.permutation(movable)[:int(round(fraction * len(movable)))]
+    tree = cKDTree(sk.positions)
+    dist, near = tree.query(sk.positions[chosen], k=min(candidates + 1, len(sk)),
+                            distance_upper_bound=max_gap * plant.height)
+    parents = sk.parents.copy()
+    for v, row_d, row in zip(chosen.tolist(), np.atleast_2d(dist), np.atleast_2d(near)):
+        for dv, u in zip(row_d.tolist(), row.tolist()):
+            if not np.isfinite(dv) or u == v or chain_of[u] < 0 or int(chain_of[u]) in joined[int(chain_of[v])]:
+                continue
+            a = u
+            while a >= 0 and a != v:  # v must not be an ancestor of u
+                a = parents[a]
+            if a == v:
+                continue
+            parents[v] = u
+            break
+    skeleton = Skeleton(sk.positions, sk.radii, parents, sk.order)
+    return Plant(skeleton, _rebuild_wood(skeleton), plant.leaf_mesh, plant.leaf_mesh_ids, list(plant.leaves),
+                 dict(plant.meta))
+
+
 def other_species(species: str) -> str:
     """The species after ``species`` among the library's species of the same family, by name (cyclic)."""
     from plantbench.species import load_species
@@ -147,6 +271,8 @@ RUNGS: dict[str, Rung] = {r.name: r for r in [
     *(Rung(f"jitter-{f:g}%", lambda p, s, g, f=f: jitter(p, f / 100, g)) for f in (0.25, 0.5, 1, 2)),
     *(Rung(f"scale-{f:g}", lambda p, s, g, f=f: p.scaled(f)) for f in (1.05, 1.1, 1.25)),
     *(Rung(f"leaves-{f:g}%", lambda p, s, g, f=f: move_leaves(p, f / 100, g)) for f in (10, 25, 50)),
+    *(Rung(f"twigs+{f:g}%", lambda p, s, g, f=f: add_twigs(p, f / 100, g)) for f in (25, 100, 400)),
+    Rung("tangle-20%", lambda p, s, g: tangle(p, 0.2, g)),
     Rung("prior-a", _prior(0)),
     Rung("prior-b", _prior(1)),
     Rung("other-species", _other),

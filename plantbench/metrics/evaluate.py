@@ -115,7 +115,9 @@ def _skeleton_metrics(values: dict, reasons: dict, plant, skeleton, samples, opt
     """The ``skeleton.*`` metrics: the reconstruction's own traits (height, branches, lengths, DBH, crown area) with
     or without ground truth; P/R/F1 and the errors against the ground truth only with it. ``samples``: the
     skeleton's (:func:`~plantbench.metrics.skeleton.skeleton_samples`)."""
-    from plantbench.metrics.skeleton import crown_area, skeleton_attributes, skeleton_prf
+    from plantbench.metrics.points import tau_label
+    from plantbench.metrics.skeleton import STRUCTURE_FRACTION, crown_area, skeleton_attributes, skeleton_prf
+    from plantbench.metrics.structure import branch_count_log2_error, branch_prf
 
     if skeleton is None:
         _set(values, reasons, "skeleton", None, "no skeleton.ply in the output")
@@ -133,6 +135,11 @@ def _skeleton_metrics(values: dict, reasons: dict, plant, skeleton, samples, opt
     prf = skeleton_prf(plant.skeleton, samples, step=options.skeleton_step,
                        height=plant.height if plant.height > 0 else None)
     a_gt = skeleton_attributes(plant.skeleton, breast_height=options.breast_height)
+    structure = {"branch_count_log2_error": branch_count_log2_error(a_gt["branch_count"], a["branch_count"])}
+    if plant.height > 0 and a_gt["branch_count"] > 0:
+        lab = tau_label(STRUCTURE_FRACTION)
+        structure.update({f"{k}@{lab}": v for k, v in
+                          branch_prf(plant.skeleton, skeleton, tau=STRUCTURE_FRACTION * plant.height).items()})
 
     def rel(k):
         return abs(a[k] - a_gt[k]) / a_gt[k] if a_gt[k] else None
@@ -143,7 +150,7 @@ def _skeleton_metrics(values: dict, reasons: dict, plant, skeleton, samples, opt
     _set(values, reasons, "skeleton", {"crown_area_rel_error": abs(area - area_gt) / area_gt if area is not None
                                        and area_gt is not None else None}, "no crown area (here or in the ground truth)")
     _set(values, reasons, "skeleton", {
-        **prf, **traits,
+        **prf, **traits, **structure,
         "branch_count_rel_error": rel("branch_count"), "total_length_rel_error": rel("total_length_m"),
         "height_error_m": abs(a["height_m"] - a_gt["height_m"]), "dbh_error_cm": dbh_err,
     }, "trunk below breast height, or no branch")

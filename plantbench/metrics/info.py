@@ -9,9 +9,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from plantbench.metrics.points import TAU_FRACTIONS, tau_label
-from plantbench.metrics.skeleton import HEIGHT_FRACTIONS, THRESHOLDS
+from plantbench.metrics.skeleton import HEIGHT_FRACTIONS, STRUCTURE_FRACTION, THRESHOLDS
 
-__all__ = ["MetricInfo", "METRICS", "HEADLINE_FIDELITY", "HEADLINE_GT_FREE"]
+__all__ = ["MetricInfo", "METRICS", "HEADLINE_FIDELITY", "HEADLINE_STRUCTURE", "HEADLINE_GT_FREE"]
 
 
 @dataclass(frozen=True)
@@ -106,6 +106,15 @@ for _f in HEIGHT_FRACTIONS:
         _add(f"skeleton.v{_k}@{tau_label(_f)}", "", True,
              f"volume-weighted skeleton {_k} within {tau_label(_f)} of plant height (wood pi r^2 x length)")
 for _f in HEIGHT_FRACTIONS:
+    for _k in ("precision", "recall", "f1"):
+        _add(f"skeleton.l{_k}@{tau_label(_f)}", "", True,
+             f"length-weighted skeleton {_k} within {tau_label(_f)} of plant height (every metre of branch alike)")
+for _k in ("precision", "recall", "f1"):
+    _add(f"skeleton.branch_{_k}@{tau_label(STRUCTURE_FRACTION)}", "", True,
+         f"branch-level {_k}: branches (Stava chains) with most of their length within {tau_label(STRUCTURE_FRACTION)}"
+         " of plant height of one branch of the other skeleton")
+_add("skeleton.branch_count_log2_error", "", False, "|log2(branch count / GT branch count)|: doublings between the counts")
+for _f in HEIGHT_FRACTIONS:
     _add(f"support.skeleton@{tau_label(_f)}", "", True,
          f"GT-free: share of skeleton length within {tau_label(_f)} of the observed height of an observed point")
 _add("skeleton.branch_count", "", None, "reconstructed branch count (unbranched chains; Guo et al. 2018, |B|)")
@@ -121,8 +130,12 @@ _add("skeleton.crown_area_m2", "m2", None,
      "reconstructed crown projection area: 2D convex hull of the skeleton nodes' (x, y); needs no ground truth")
 _add("skeleton.crown_area_rel_error", "", False, "|crown projection area - GT| / GT")
 
-HEADLINE_FIDELITY = ("skeleton.vf1@1%", "surface.wood.fscore@0.5%", "leaves.strict_f1")
-"""The headline fidelity metrics: one skeleton, one surface and one leaf metric that ``plantbench calibrate`` found
-to tell a faithful reconstruction from a plausible one (reports/calibration/)."""
+HEADLINE_STRUCTURE = ("skeleton.branch_f1@1%",)
+"""The headline structure metric: the branch-level F1, which ``plantbench calibrate`` found to see invented
+branches and wrong forks besides telling a faithful reconstruction from a plausible one (reports/calibration/)."""
+HEADLINE_FIDELITY = ("skeleton.vf1@1%", *HEADLINE_STRUCTURE, "surface.wood.fscore@0.5%", "leaves.strict_f1")
+"""The headline fidelity metrics: the skeleton's volume (vF1) and structure (:data:`HEADLINE_STRUCTURE`), one
+surface and one leaf metric, each of which ``plantbench calibrate`` found to tell a faithful reconstruction from a
+plausible one (reports/calibration/)."""
 HEADLINE_GT_FREE = ("support.skeleton@1%",)
 """The headline metric that needs no ground truth (real captures)."""

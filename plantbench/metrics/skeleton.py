@@ -19,6 +19,13 @@ a capture does constrain, carry the score. An empty predicted skeleton scores vp
 with no length (a single node) or no radius has vprecision 0 and vF1 0, its vrecall being the share of the
 ground-truth wood within tau of its nodes.
 
+Length-weighted precision / recall at the same tolerances (lprecision, lrecall, lF1): the same samples and
+distances, each sample weighted by the edge length it covers alone. A twig weighs as much per metre as the trunk, so
+invented branches cost precision in proportion to their length: the exact skeleton with twigs of total length L'
+added to its length L, all farther than tau from it, has lprecision L / (L + L') and lrecall 1. Reported beside the
+volume-weighted scores for the structure of the crown (:mod:`plantbench.metrics.structure` counts branches). The
+degenerate cases are those of the volume-weighted scores.
+
 DBH: diameter of the trunk at height ``breast_height`` above the lowest skeleton node (1.3 m, as TreeQSM), the trunk
 being the path that starts at the thickest root and always follows the thickest child; linear interpolation of the
 radius along the edge that crosses that height. None when the trunk does not reach it.
@@ -39,13 +46,16 @@ import numpy as np
 from plantbench.plant import Skeleton, check_shape
 from plantbench.skeletons import branch_chains, children_lists
 
-__all__ = ["THRESHOLDS", "HEIGHT_FRACTIONS", "SkeletonSamples", "skeleton_samples", "sample_skeleton",
+__all__ = ["THRESHOLDS", "HEIGHT_FRACTIONS", "STRUCTURE_FRACTION", "SkeletonSamples", "skeleton_samples", "sample_skeleton",
            "sample_weights", "skeleton_prf", "skeleton_attributes", "dbh", "skeleton_support", "crown_area"]
 
 THRESHOLDS = (0.5, 1.0, 2.0)
 """Radius-relative tolerances of the Smart-Tree protocol (multiples of the local ground-truth radius)."""
 HEIGHT_FRACTIONS = (0.005, 0.01, 0.02)
-"""Height-relative tolerances of the volume-weighted scores (fractions of the ground-truth plant height)."""
+"""Height-relative tolerances of the volume- and length-weighted scores (fractions of the ground-truth plant height)."""
+STRUCTURE_FRACTION = 0.01
+"""Tolerance of the branch-level scores (:func:`plantbench.metrics.structure.branch_prf`), a fraction of the
+ground-truth plant height."""
 
 
 @dataclass(frozen=True)
@@ -128,8 +138,9 @@ def skeleton_prf(gt: Skeleton | SkeletonSamples, pred: Skeleton | SkeletonSample
                  thresholds: tuple[float, ...] = THRESHOLDS, step: float = 0.001, height: float | None = None,
                  height_fractions: tuple[float, ...] = HEIGHT_FRACTIONS) -> dict[str, float]:
     """Keys 'precision@t', 'recall@t', 'f1@t' for each threshold t (multiples of the local ground-truth radius) and,
-    when ``height`` (the ground-truth plant height, metres) is given, 'vprecision@f', 'vrecall@f', 'vf1@f' for each
-    height fraction f (labelled as :func:`plantbench.metrics.points.tau_label` does: '1%').
+    when ``height`` (the ground-truth plant height, metres) is given, 'vprecision@f', 'vrecall@f', 'vf1@f'
+    (volume-weighted) and 'lprecision@f', 'lrecall@f', 'lf1@f' (length-weighted) for each height fraction f
+    (labelled as :func:`plantbench.metrics.points.tau_label` does: '1%').
 
     ``gt`` and ``pred`` may be given as their samples (:func:`skeleton_samples`, when the caller shares them with
     other metrics); ``step`` is then theirs."""
@@ -159,14 +170,15 @@ def skeleton_prf(gt: Skeleton | SkeletonSamples, pred: Skeleton | SkeletonSample
         out[f"recall@{t:.1f}"] = rec
         out[f"f1@{t:.1f}"] = 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0
     if height is not None:
-        wg, wp = g.weights(), p.weights()
-        for f, tau in zip(height_fractions, taus):
-            prec = _weighted_share(wp, d_p < tau) if len(p.points) else 0.0
-            rec = _weighted_share(wg, d_g < tau) if len(p.points) else 0.0
-            lab = tau_label(f)
-            out[f"vprecision@{lab}"] = prec
-            out[f"vrecall@{lab}"] = rec
-            out[f"vf1@{lab}"] = 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0
+        for kind, volume in (("v", True), ("l", False)):
+            wg, wp = g.weights(volume), p.weights(volume)
+            for f, tau in zip(height_fractions, taus):
+                prec = _weighted_share(wp, d_p < tau) if len(p.points) else 0.0
+                rec = _weighted_share(wg, d_g < tau) if len(p.points) else 0.0
+                lab = tau_label(f)
+                out[f"{kind}precision@{lab}"] = prec
+                out[f"{kind}recall@{lab}"] = rec
+                out[f"{kind}f1@{lab}"] = 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0
     return out
 
 
@@ -258,14 +270,14 @@ def _settle(g: SkeletonSamples, p: SkeletonSamples, taus: np.ndarray, factor: fl
     settled &= ~((taus[None, :] >= lo[:, None]) & (taus[None, :] <= hi[:, None])).any(axis=1)
     # no sample thick enough for a radius test near the sample: per anchor, the samples of radius above a level
     # below (d_a - gap_max) / factor, none within d_a + 2 gap_max of the anchor
-    clear = np.zeros(len(anchors), bool)
+    clear = np.zeros(len(anchors), bool) if factor > 0 else np.ones(len(anchors), bool)  # (no radius test: clear)
     live = np.isfinite(d_a)
-    r_need = (np.where(live, d_a, 0.0) - gap_max - 1e-9) / factor
+    r_need = (np.where(live, d_a, 0.0) - gap_max - 1e-9) / max(factor, 1e-300)
     positive = g.radii[g.radii > 0]
     base = float(positive.min()) if len(positive) else 1.0
-    level = np.floor(np.log2(np.maximum(r_need, base) / base)).astype(np.int64)
+    level = np.floor(np.log2(np.clip(r_need, base, 1e300) / base)).astype(np.int64)
     level -= base * 2.0 ** level > r_need  # (log2 rounded up: the level must not exceed r_need)
-    level[~live | (r_need < base)] = -1  # (a sample can pass against any radius, or the anchor is not found)
+    level[~live | (r_need < base) | (factor <= 0)] = -1  # (a sample can pass against any radius, or not found)
     reach = d_a + 2 * gap_max + 1e-9
     for k in np.unique(level[level >= 0]).tolist():
         sel = np.flatnonzero(level == k)

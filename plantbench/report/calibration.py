@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -30,12 +31,23 @@ __all__ = ["LADDER", "calibration_suite", "run_calibration", "verdicts", "ladder
            "ladder_figure", "write_calibration", "ALLOWED_FAILURES", "LADDER_FILE"]
 
 LADDER = ("gt", "orders<=3", "orders<=2", "orders<=1", "jitter-0.25%", "jitter-0.5%", "jitter-1%", "jitter-2%",
-          "scale-1.05", "scale-1.1", "scale-1.25", "leaves-10%", "leaves-25%", "leaves-50%", "prior-a", "prior-b",
-          "other-species")
+          "scale-1.05", "scale-1.1", "scale-1.25", "leaves-10%", "leaves-25%", "leaves-50%", "twigs+25%",
+          "twigs+100%", "twigs+400%", "tangle-20%", "prior-a", "prior-b", "other-species")
 """Rung names in the order of the tables."""
 JITTER = ("gt", "jitter-0.25%", "jitter-0.5%", "jitter-1%", "jitter-2%")
 PRUNING = ("gt", "orders<=3", "orders<=2", "orders<=1")
+TWIGS = ("gt", "twigs+25%", "twigs+100%", "twigs+400%")
+TANGLE = "tangle-20%"
 PRIORS = ("prior-a", "prior-b")
+MATERIAL = 0.25
+"""Share of the distance from the exact plant to the better prior that the ``twigs+400%`` rung (about five times
+the true branch count) must lose, for a metric to see invented branches: a metric that loses less only by rounding
+(the volume-weighted vF1 loses 0.03-0.14 of a 0.6-0.7 gap) orders the twig rungs without telling a tree from a
+tangle of twigs."""
+VOLUME_CHECKS = ("orders<=2>prior", "jitter-0.5%>prior", "pruning monotone", "jitter monotone")
+"""The checks of the volume verdict (every fidelity metric of the headline passes them)."""
+STRUCTURE_CHECKS = ("twigs ordered", "tangle<gt", "twigs+400% material")
+"""The checks a structure metric passes too: it sees invented branches and wrong forks."""
 LADDER_FILE = "ladder.csv.gz"
 """The committed ladder table (gzip: ~90 metrics x 17 rungs x the plants)."""
 ALLOWED_FAILURES = 0.1
@@ -97,25 +109,42 @@ def _monotone(v: dict[str, float], rungs: tuple[str, ...], higher: bool) -> bool
         _better(v[rungs[0]], v[rungs[-1]], higher)
 
 
-def plant_checks(row: dict[str, float], higher: bool) -> dict[str, bool]:
-    """The checks of one plant: rung -> value (NaN when missing), the metric's direction."""
-    v = {r: float(row.get(r, float("nan"))) for r in LADDER}
-    best_prior = max(v[p] for p in PRIORS) if higher else min(v[p] for p in PRIORS)
+def _best_prior(v: dict[str, float], higher: bool) -> float:
     if any(not math.isfinite(v[p]) for p in PRIORS):
-        best_prior = float("nan")
+        return float("nan")
+    return max(v[p] for p in PRIORS) if higher else min(v[p] for p in PRIORS)
+
+
+def plant_checks(row: dict[str, float], higher: bool) -> dict[str, bool]:
+    """The checks of one plant (:data:`VOLUME_CHECKS`, then :data:`STRUCTURE_CHECKS`): rung -> value (NaN or
+    absent when missing: the checks that need it fail), the metric's direction."""
+    v = {r: float(row.get(r, float("nan"))) for r in LADDER}
+    best_prior = _best_prior(v, higher)
+    gap = v["gt"] - best_prior
     return {
         "orders<=2>prior": _better(v["orders<=2"], best_prior, higher),
         "jitter-0.5%>prior": _better(v["jitter-0.5%"], best_prior, higher),
         "pruning monotone": _monotone(v, PRUNING, higher),
         "jitter monotone": _monotone(v, JITTER, higher),
+        "twigs ordered": all(_better(v[a], v[b], higher) for a, b in zip(TWIGS, TWIGS[1:])),
+        "tangle<gt": _better(v["gt"], v[TANGLE], higher),
+        "twigs+400% material": _better(v["gt"], best_prior, higher) and _not_better(
+            v[TWIGS[-1]], v["gt"] - MATERIAL * gap, higher),
     }
 
 
+def _verdict(passed: int, n: int) -> str:
+    return "discriminates" if n > 0 and passed >= n - math.floor(ALLOWED_FAILURES * n + 1e-9) else \
+        "does not discriminate"
+
+
 def verdicts(table):
-    """Per metric with a direction: plants passing each check, plants passing all, and the verdict.
+    """Per metric with a direction: plants passing each check, and two verdicts.
 
     Returns a DataFrame: metric, higher_is_better, plants, one column per check (plants passing it), passed
-    (plants passing every check), verdict ('discriminates' or 'does not discriminate')."""
+    (plants passing every volume check, :data:`VOLUME_CHECKS`), verdict ('discriminates' or 'does not
+    discriminate'), structure_passed (plants passing every check, the structure ones too) and structure (the
+    verdict of a structure metric: 'discriminates' or 'does not discriminate')."""
     import pandas as pd
 
     from plantbench.report.tables import metric_info
@@ -128,11 +157,12 @@ def verdicts(table):
             continue
         checks = [plant_checks(r.to_dict(), info.higher_is_better) for _, r in grp.iterrows()]
         n = len(checks)
-        counts = {k: sum(c[k] for c in checks) for k in checks[0]} if checks else {}
-        passed = sum(all(c.values()) for c in checks)
-        ok = n > 0 and passed >= n - math.floor(ALLOWED_FAILURES * n + 1e-9)
+        counts = {k: sum(c[k] for c in checks) for k in VOLUME_CHECKS + STRUCTURE_CHECKS}
+        passed = sum(all(c[k] for k in VOLUME_CHECKS) for c in checks)
+        structure = sum(all(c.values()) for c in checks)
         rows.append({"metric": metric, "higher_is_better": info.higher_is_better, "plants": n, **counts,
-                     "passed": passed, "verdict": "discriminates" if ok else "does not discriminate"})
+                     "passed": passed, "verdict": _verdict(passed, n), "structure_passed": structure,
+                     "structure": _verdict(structure, n)})
     return pd.DataFrame(rows)
 
 
@@ -150,52 +180,78 @@ def _fmt(v: float) -> str:
     return f"{v:.3f}" if abs(v) < 100 else f"{v:.0f}"
 
 
-def calibration_markdown(table, verdict, *, header: str = "", headline: tuple[str, ...] = ()) -> str:
-    """The README of reports/calibration: the verdict table (every metric), the ladder's means for the key metrics."""
+def calibration_markdown(table, verdict, *, header: str = "", headline: tuple[str, ...] = (),
+                         structure: tuple[str, ...] = ()) -> str:
+    """The README of reports/calibration: the verdict table (every metric), the ladder's means for the key metrics.
+    ``headline``: the headline fidelity metrics; ``structure``: those of them that must pass the structure checks."""
     n = int(verdict["plants"].max()) if len(verdict) else 0
+    need = n - math.floor(ALLOWED_FAILURES * n + 1e-9)
     lines = ["# Metric calibration", "", header, "",
              "Each plant of the suite is reconstructed by controlled degradations of its ground truth "
              "(`plantbench.methods.ladder`), scored by every metric. A metric **discriminates** when on at least "
-             f"{n - math.floor(ALLOWED_FAILURES * n + 1e-9)} of {n} plants it ranks the skeleton pruned to branch "
+             f"{need} of {n} plants it ranks the skeleton pruned to branch "
              "orders <= 2 above both no-data priors (the species grown with seeds 0 and 1, scaled to the plant's "
              "height), the ground truth with every node jittered by 0.5 % of the height above both priors, the "
              "pruning rungs (gt, orders <= 3, 2, 1) in order and the jitter rungs (gt, 0.25, 0.5, 1, 2 %) in order "
              "(ties allowed between neighbours: a plant without order-3 branches loses nothing to orders <= 2; the "
-             "last rung must be worse than gt).", ""]
+             "last rung must be worse than gt).", "",
+             "A metric **sees structure** when, on at least the same number of plants, it also passes three checks "
+             "on rungs that add structure to the exact plant: *twigs ordered*, the exact plant strictly above twigs "
+             "added at +25 %, +100 % and +400 % of its branch count, each strictly above the next (invented twigs "
+             "drawn from the plant's own terminal branches, attached at random nodes); *tangle<gt*, the exact plant "
+             "strictly above the tangle (a fifth of the nodes re-hung on a nearby node of an unrelated branch, the "
+             "jumps across gaps a graph method makes on a noisy cloud); and *twigs+400% material*, the +400 % rung "
+             f"(about five times the true branch count) at least {MATERIAL:g} of the way from the exact plant down "
+             "to the better prior, so that a metric which orders the twig rungs only by rounding fails.", ""]
     if headline:
         lines += ["Headline fidelity metrics (`plantbench metrics --headline`): "
-                  + ", ".join(f"`{m}`" for m in headline) + ". The headline's GT-free column, "
-                  "`support.skeleton@1%`, is not a fidelity metric and is not meant to pass: it asks only whether the "
-                  "skeleton lies where the capture saw something, so it cannot see missing branches (pruning) and it "
-                  "is what a real capture without ground truth allows.", ""]
-    key = list(headline) + [m for m in ("stava.S_T", "mesh_to_surface.D_cm", "leaves.accuracy", "leaves.f1",
-                                         "skeleton.f1@1.0", "surface.all.fscore@2%", "reprojection.iou",
-                                         "support.skeleton@1%") if m not in headline]
+                  + ", ".join(f"`{m}`" for m in headline) + "; of them "
+                  + ", ".join(f"`{m}`" for m in structure) + " must also see structure. The headline's GT-free "
+                  "column, `support.skeleton@1%`, is not a fidelity metric and is not meant to pass: it asks only "
+                  "whether the skeleton lies where the capture saw something, so it cannot see missing branches "
+                  "(pruning) and it is what a real capture without ground truth allows.", ""]
+    key = list(headline) + [m for m in ("skeleton.lf1@1%", "skeleton.branch_count_log2_error", "stava.S_T",
+                                         "mesh_to_surface.D_cm", "leaves.accuracy", "leaves.f1", "skeleton.f1@1.0",
+                                         "surface.all.fscore@2%", "reprojection.iou", "support.skeleton@1%")
+                            if m not in headline]
     means = ladder_means(table, key)
     lines += ["## The ladder (mean over plants)", "", "Rows: metrics; columns: rungs.", "",
               "| metric | " + " | ".join(means.columns) + " |", "|---" * (len(means.columns) + 1) + "|"]
     for metric, row in means.iterrows():
         lines.append(f"| {metric} | " + " | ".join(_fmt(v) for v in row) + " |")
-    checks = [c for c in verdict.columns if c not in ("metric", "higher_is_better", "plants", "passed", "verdict")]
+    checks = list(VOLUME_CHECKS + STRUCTURE_CHECKS)
     failing = verdict[(verdict["verdict"] != "discriminates") & verdict["metric"].isin(means.index)]
     if len(failing):
         lines += ["", "## Why the older columns are not headline metrics", ""]
         for d in failing.to_dict("records"):
-            missed = ", ".join(f"{c} on {int(d[c])}/{n}" for c in checks if int(d[c]) < n)
+            missed = ", ".join(f"{c} on {int(d[c])}/{n}" for c in VOLUME_CHECKS if int(d[c]) < n)
             m = means.loc[d["metric"]]
             lines.append(f"- `{d['metric']}`: {missed} plants (means: orders<=2 {_fmt(m.get('orders<=2', np.nan))}, "
                          f"orders<=1 {_fmt(m.get('orders<=1', np.nan))}, jitter 0.5 % "
                          f"{_fmt(m.get('jitter-0.5%', np.nan))}, priors {_fmt(m.get('prior-a', np.nan))} and "
                          f"{_fmt(m.get('prior-b', np.nan))}).")
+    blind = verdict[(verdict["verdict"] == "discriminates") & (verdict["structure"] != "discriminates")
+                    & verdict["metric"].isin(means.index)]
+    if len(blind):
+        lines += ["", "## Fidelity metrics that do not see structure", ""]
+        for d in blind.to_dict("records"):
+            missed = ", ".join(f"{c} on {int(d[c])}/{n}" for c in STRUCTURE_CHECKS if int(d[c]) < n)
+            m = means.loc[d["metric"]]
+            lines.append(f"- `{d['metric']}`: {missed} plants (means: gt {_fmt(m.get('gt', np.nan))}, twigs +25 / "
+                         f"+100 / +400 % {_fmt(m.get('twigs+25%', np.nan))} / {_fmt(m.get('twigs+100%', np.nan))} / "
+                         f"{_fmt(m.get('twigs+400%', np.nan))}, tangle {_fmt(m.get(TANGLE, np.nan))}).")
     lines += ["", "## Verdict per metric", "",
-              "Counts are plants passing each check (of " + str(n) + ").", "",
-              "| metric | dir | " + " | ".join(checks) + " | all | verdict |", "|---" * (len(checks) + 4) + "|"]
-    order = verdict.assign(_d=verdict["verdict"] != "discriminates").sort_values(["_d", "metric"])
-    for r in order.itertuples(index=False):
-        d = r._asdict()
+              "Counts are plants passing each check (of " + str(n) + "); *all*: every volume check, *all+s*: every "
+              "check.", "",
+              "| metric | dir | " + " | ".join(checks) + " | all | verdict | all+s | structure |",
+              "|---" * (len(checks) + 6) + "|"]
+    order = verdict.assign(_d=verdict["verdict"] != "discriminates",
+                           _s=verdict["structure"] != "discriminates").sort_values(["_d", "_s", "metric"])
+    for d in order.to_dict("records"):
         lines.append(f"| {d['metric']} | {'↑' if d['higher_is_better'] else '↓'} | "
-                     + " | ".join(str(int(verdict.loc[verdict['metric'] == d['metric'], c].iloc[0])) for c in checks)
-                     + f" | {d['passed']} | {d['verdict']} |")
+                     + " | ".join(str(int(d[c])) for c in checks)
+                     + f" | {d['passed']} | {d['verdict']} | {d['structure_passed']} | "
+                     + ("sees structure" if d["structure"] == "discriminates" else "-") + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -219,7 +275,7 @@ def ladder_figure(table, metrics: list[str], path: str | os.PathLike) -> Path:
             ax.set_visible(False)
             continue
         data = piv.loc[metric, rungs]
-        kind = [r.split("-")[0].split("<")[0] for r in rungs]  # lines join rungs of one kind only
+        kind = [re.split(r"[-<+]", r)[0] for r in rungs]  # lines join rungs of one kind only
         breaks = [i for i in range(1, len(rungs)) if kind[i] != kind[i - 1] and kind[i - 1] != "gt"]
 
         def gapped(values: np.ndarray, breaks: list[int] = breaks) -> tuple[np.ndarray, np.ndarray]:
@@ -250,7 +306,7 @@ def write_calibration(table, folder: str | os.PathLike, *, header: str = "") -> 
     """Write ladder.csv.gz (every rung's every metric), verdicts.csv, ladder.png and README.md into ``folder``;
     returns (the verdict frame, the files written)."""
     from plantbench.io.atomic import atomic_write
-    from plantbench.metrics.info import HEADLINE_FIDELITY
+    from plantbench.metrics.info import HEADLINE_FIDELITY, HEADLINE_STRUCTURE
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -261,11 +317,12 @@ def write_calibration(table, folder: str | os.PathLike, *, header: str = "") -> 
             fh, index=False, compression={"method": "gzip", "mtime": 0})
     with atomic_write(folder / "verdicts.csv", "w") as fh:
         verdict.to_csv(fh, index=False)
-    figure = ladder_figure(table, list(HEADLINE_FIDELITY) + ["support.skeleton@1%", "stava.S_T", "leaves.f1",
-                                                             "skeleton.f1@1.0", "mesh_to_surface.D_cm"],
-                           folder / "ladder.png")
+    figure = ladder_figure(table, list(HEADLINE_FIDELITY) + [m for m in (
+        "skeleton.lf1@1%", "skeleton.branch_count_log2_error", "support.skeleton@1%", "stava.S_T",
+        "skeleton.f1@1.0", "mesh_to_surface.D_cm") if m not in HEADLINE_FIDELITY], folder / "ladder.png")
     header += (f" {LADDER_FILE} holds every rung's every metric, verdicts.csv the verdicts; the figure shows the "
                f"headline metrics and the older ones per rung.\n\n![ladder]({figure.name})")
     with atomic_write(folder / "README.md", "w") as fh:
-        fh.write(calibration_markdown(table, verdict, header=header, headline=HEADLINE_FIDELITY))
+        fh.write(calibration_markdown(table, verdict, header=header, headline=HEADLINE_FIDELITY,
+                                      structure=HEADLINE_STRUCTURE))
     return verdict, [folder / LADDER_FILE, folder / "verdicts.csv", figure, folder / "README.md"]

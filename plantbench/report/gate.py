@@ -32,6 +32,7 @@ HEADLINE = tuple(m for m in KEY_METRICS if m != "runtime_s")
 
 FLOORS = {
     "skeleton.vf1@1%": 0.005,
+    "skeleton.branch_f1@1%": 0.005,
     "surface.wood.fscore@0.5%": 0.005,
     "leaves.strict_f1": 0.005,
     "support.skeleton@1%": 0.005,

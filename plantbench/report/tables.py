@@ -34,6 +34,7 @@ KEY_METRICS = (
 
 SHORT_LABELS = {
     "skeleton.vf1@1%": "skeleton vF1 1%H",
+    "skeleton.branch_f1@1%": "branch F1 1%H",
     "surface.wood.fscore@0.5%": "wood F 0.5%H",
     "leaves.strict_f1": "leaf F1 strict",
     "support.skeleton@1%": "support 1%H",

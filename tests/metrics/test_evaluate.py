@@ -12,10 +12,11 @@ import pytest
 from plantbench.errors import InputError
 from plantbench.io.plantio import write_reconstruction
 from plantbench.methods.gt import GroundTruth
-from plantbench.metrics import METRICS, MetricInfo
 from plantbench.metrics.evaluate import EvaluateOptions, evaluate, evaluate_detailed, format_summary
+from plantbench.metrics.info import METRICS, MetricInfo
 from plantbench.plant import Skeleton, TriMesh
 from plantbench.registry import metrics
+from plantbench.skeletons import branch_chains
 
 from .synth import synthetic_case
 
@@ -90,11 +91,15 @@ def test_degenerate_reconstructions(case):
     assert res["surface.all.fscore@1%"] == 0.0 and res["skeleton.f1@1.0"] >= 0.0
     # the calibrated headline: a one-node skeleton has no length (vF1 0, no GT-free support); no leaves.json: None
     assert res["skeleton.vf1@1%"] == 0.0 and res["skeleton.vprecision@1%"] == 0.0
+    # no branch with length: branch F1 0, the count error as for one branch
+    assert res["skeleton.branch_f1@1%"] == 0.0 and res["skeleton.lf1@1%"] == 0.0
+    assert res["skeleton.branch_count_log2_error"] == pytest.approx(np.log2(len(branch_chains(plant.skeleton))))
     assert res["support.skeleton@1%"] is None and "no length" in reasons["support.skeleton@1%"]
     assert res["leaves.strict_f1"] is None
     write_reconstruction(root / "no_leaves", plant.skeleton, leaves=[])
     res = evaluate(root / "case", root / "no_leaves", options=FAST)
     assert res["leaves.strict_f1"] == 0.0 and res["leaves.strict_recall"] == 0.0 and res["skeleton.vf1@1%"] == 1.0
+    assert res["skeleton.branch_f1@1%"] == 1.0 and res["skeleton.branch_count_log2_error"] == 0.0
     # the ground truth's own skeleton: supported by its scan where the scan saw it (a share in (0, 1])
     assert 0.0 < res["support.skeleton@1%"] <= 1.0
     assert all(v is None or math.isfinite(v) for v in res.values())
@@ -115,7 +120,7 @@ def test_real_capture_without_ground_truth(case, tmp_path):
         assert res[f"skeleton.{name}"] == full[f"skeleton.{name}"] and res[f"skeleton.{name}"] is not None
     assert res["skeleton.dbh_cm"] == full["skeleton.dbh_cm"]
     for name in ("height_error_m", "branch_count_rel_error", "dbh_error_cm", "crown_area_rel_error", "f1@1.0",
-                 "vf1@1%"):
+                 "vf1@1%", "lf1@1%", "branch_f1@1%", "branch_count_log2_error"):
         assert res[f"skeleton.{name}"] is None and "plant/" in reasons[f"skeleton.{name}"]
     assert full["skeleton.crown_area_rel_error"] == 0.0
 

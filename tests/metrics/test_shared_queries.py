@@ -82,13 +82,14 @@ def _prf_full_search(gt: Skeleton, pred: Skeleton, step: float, height: float | 
         out |= {f"precision@{t:.1f}": prec, f"recall@{t:.1f}": rec,
                 f"f1@{t:.1f}": 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0}
     if height is not None:
-        wg, wp = sample_weights(gt, step), sample_weights(pred, step)
-        for f in (0.005, 0.01, 0.02):
-            tau = f * height
-            prec = float(wp[d_p < tau].sum()) / float(wp.sum())
-            rec = float(wg[d_g < tau].sum()) / float(wg.sum())
-            out |= {f"vprecision@{tau_label(f)}": prec, f"vrecall@{tau_label(f)}": rec,
-                    f"vf1@{tau_label(f)}": 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0}
+        for kind, volume in (("v", True), ("l", False)):
+            wg, wp = sample_weights(gt, step, volume=volume), sample_weights(pred, step, volume=volume)
+            for f in (0.005, 0.01, 0.02):
+                tau = f * height
+                prec = float(wp[d_p < tau].sum()) / float(wp.sum())
+                rec = float(wg[d_g < tau].sum()) / float(wg.sum())
+                out |= {f"{kind}precision@{tau_label(f)}": prec, f"{kind}recall@{tau_label(f)}": rec,
+                        f"{kind}f1@{tau_label(f)}": 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0}
     return out
 
 

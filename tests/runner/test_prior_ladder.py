@@ -13,10 +13,10 @@ from plantbench.hints import load_hint, write_hint
 from plantbench.io.plantio import read_reconstruction
 from plantbench.io.ply import write_points
 from plantbench.methods.inputs import is_oracle, reads_ground_truth
-from plantbench.methods.ladder import RUNGS, build_rung, jitter, move_leaves, other_species, prune
+from plantbench.methods.ladder import RUNGS, add_twigs, build_rung, jitter, move_leaves, other_species, prune, tangle
 from plantbench.methods.prior import SpeciesPrior, cloud_height, grow_prior
 from plantbench.plant import TriMesh
-from plantbench.report.calibration import LADDER, plant_checks, verdicts
+from plantbench.report.calibration import LADDER, STRUCTURE_CHECKS, VOLUME_CHECKS, plant_checks, verdicts
 from plantbench.seeding import rng as seeded
 
 
@@ -101,8 +101,79 @@ def test_move_leaves_by_fraction_of_length(laurel):
     assert np.array_equal(m.skeleton.positions, laurel.skeleton.positions)
 
 
+def _hand_chain_count(skeleton) -> int:
+    """Branches (Stava chains) counted by hand: one per edge leaving a root or a fork."""
+    kids = skeleton.children_counts()
+    return int(sum(k for v, k in enumerate(kids) if skeleton.parents[v] < 0 or k >= 2))
+
+
+def test_twigs_are_drawn_from_the_plants_terminal_branches(laurel):
+    from plantbench.skeletons import branch_chains, chain_lengths
+
+    sk = laurel.skeleton
+    n = len(branch_chains(sk))
+    kids = sk.children_counts()
+    term = [c for c in branch_chains(sk) if kids[c[-1]] == 0]
+    lengths = chain_lengths(sk, term)
+    out = add_twigs(laurel, 1.0, seeded(3, "t"))
+    new = out.skeleton
+    assert np.array_equal(new.positions[:len(sk)], sk.positions) and np.array_equal(new.parents[:len(sk)], sk.parents)
+    first = np.flatnonzero(new.parents[len(sk):] < len(sk)) + len(sk)  # each twig's first node
+    assert len(first) == n and len(np.unique(new.parents[first])) == n  # n twigs at n distinct nodes
+    assert (kids[new.parents[first]] > 0).all()  # attached at nodes with children
+    twig_of = np.searchsorted(first, np.arange(len(sk), len(new)), side="right") - 1
+    ends = np.append(first[1:] - 1, len(new) - 1)
+    for f, e in zip(first, ends):  # straight, of a terminal branch's length, tapering, no thicker than the node
+        a = new.positions[new.parents[f]]
+        length = np.linalg.norm(new.positions[e] - a)
+        assert np.min(np.abs(lengths - length)) < 1e-9
+        assert new.radii[f] <= new.radii[new.parents[f]] + 1e-15 and new.radii[e] <= new.radii[f] + 1e-15
+    assert (twig_of >= 0).all() and new.is_forest() and (new.positions[:, 2] >= -1e-12).all()
+    assert _hand_chain_count(new) == len(branch_chains(new)) > 2 * n - 1
+    assert len(out.branch_mesh.vertices) > len(laurel.branch_mesh.vertices)  # the wood rebuilt with the twigs
+    assert add_twigs(laurel, 0.0, seeded(3, "t")) is laurel
+
+
+def test_twigs_cost_the_branch_f1_a_hand_computed_amount_and_not_the_wood():
+    # +100 %: n true branches, n twigs; the twig rung has m branches (counted by hand), and a one-to-one matching
+    # finds at most n of them, so branch F1 <= 2 n / (n + m); the volume-weighted F1 hardly moves (twigs are thin)
+    from plantbench.metrics.skeleton import skeleton_prf
+    from plantbench.metrics.structure import branch_prf
+
+    plant = grow_species("peach", 2, scale=0.3)[0]
+    n = _hand_chain_count(plant.skeleton)
+    twigs = build_rung("twigs+100%", plant, "peach", 2)
+    m = _hand_chain_count(twigs.skeleton)
+    bound = 2 * n / (n + m)
+    assert m >= 2 * n and bound < 0.7
+    tau = 0.01 * plant.height
+    exact = branch_prf(plant.skeleton, plant.skeleton, tau=tau)["branch_f1"]
+    assert exact == 1.0 and branch_prf(plant.skeleton, twigs.skeleton, tau=tau)["branch_f1"] <= bound
+    v = skeleton_prf(plant.skeleton, twigs.skeleton, height=plant.height, thresholds=())["vf1@1%"]
+    assert v > 0.95
+
+
+def test_tangle_rehangs_a_fifth_of_the_nodes_across_gaps():
+    from plantbench.skeletons import branch_chains
+
+    laurel = grow_species("laurel", 1)[0]  # full size: the small one's nodes have few neighbours within 5 % H
+    sk = laurel.skeleton
+    out = tangle(laurel, 0.2, seeded(1, "t"))
+    new = out.skeleton
+    assert np.array_equal(new.positions, sk.positions) and new.is_forest()
+    moved = np.flatnonzero(new.parents != sk.parents)
+    assert 0.1 * len(sk) < len(moved) <= round(0.2 * (len(sk) - len(sk.roots)))
+    gap = np.linalg.norm(new.positions[moved] - new.positions[new.parents[moved]], axis=1)
+    assert gap.max() <= 0.05 * laurel.height + 1e-12
+    chain_of = np.full(len(sk), -1)
+    for c, nodes in enumerate(branch_chains(sk)):
+        chain_of[nodes[1:]] = c
+    assert (chain_of[moved] != chain_of[new.parents[moved]]).all()  # onto another branch
+    assert len(branch_chains(new)) != len(branch_chains(sk))
+
+
 def test_rungs_deterministic_per_seed(laurel):
-    for name in ("jitter-0.5%", "leaves-25%", "prior-a"):
+    for name in ("jitter-0.5%", "leaves-25%", "prior-a", "twigs+25%", "tangle-20%"):
         a, b = build_rung(name, laurel, "laurel", 7), build_rung(name, laurel, "laurel", 7)
         assert np.array_equal(a.skeleton.positions, b.skeleton.positions)
         assert np.array_equal(TriMesh.concatenate([a.branch_mesh, a.leaf_mesh]).vertices,
@@ -121,11 +192,15 @@ def _ladder_table(values_per_case: dict[str, dict[str, float]], metric: str) -> 
     return pd.DataFrame(rows)
 
 
+def _volume(checks: dict[str, bool]) -> bool:
+    return all(checks[k] for k in VOLUME_CHECKS)
+
+
 def test_verdict_on_hand_made_ladders():
     good = {"gt": 1.0, "orders<=3": 0.9, "orders<=2": 0.8, "orders<=1": 0.6, "prior-a": 0.3, "prior-b": 0.35,
             "jitter-0.25%": 0.98, "jitter-0.5%": 0.9, "jitter-1%": 0.7, "jitter-2%": 0.4}
-    assert all(plant_checks(good, True).values())
-    assert all(plant_checks(dict(good, **{"orders<=3": 1.0, "orders<=2": 1.0}), True).values())  # nothing to prune
+    assert _volume(plant_checks(good, True)) and not any(plant_checks(good, True)[k] for k in STRUCTURE_CHECKS)
+    assert _volume(plant_checks(dict(good, **{"orders<=3": 1.0, "orders<=2": 1.0}), True))  # nothing to prune
     assert not plant_checks(dict(good, **{"orders<=1": 1.0}), True)["pruning monotone"]  # pruning must cost
     blind = dict(good, **{"orders<=1": 0.95})  # a metric that prefers the more pruned tree (one-way distance)
     assert not plant_checks(blind, True)["pruning monotone"]
@@ -143,6 +218,31 @@ def test_verdict_on_hand_made_ladders():
     missing = dict(good)
     del missing["prior-b"]
     assert not plant_checks(missing, True)["orders<=2>prior"]  # a missing value fails
+
+
+def test_structure_verdict_on_hand_made_ladders():
+    volume = {"gt": 1.0, "orders<=3": 0.9, "orders<=2": 0.8, "orders<=1": 0.6, "prior-a": 0.2, "prior-b": 0.24,
+              "jitter-0.25%": 0.98, "jitter-0.5%": 0.9, "jitter-1%": 0.7, "jitter-2%": 0.4}
+    # sees structure: the twig rungs strictly ordered, the +400 % rung at least a quarter of the way to the prior
+    # (1 - 0.25 (1 - 0.24) = 0.81), the tangle below gt
+    sees = dict(volume, **{"twigs+25%": 0.8, "twigs+100%": 0.5, "twigs+400%": 0.2, "tangle-20%": 0.7})
+    assert all(plant_checks(sees, True).values())
+    # orders the twig rungs by rounding only (a volume-weighted score): fails the material check
+    rounding = dict(sees, **{"twigs+25%": 0.998, "twigs+100%": 0.99, "twigs+400%": 0.96})
+    checks = plant_checks(rounding, True)
+    assert checks["twigs ordered"] and not checks["twigs+400% material"]
+    assert not plant_checks(dict(sees, **{"twigs+400%": 0.82}), True)["twigs+400% material"]
+    assert plant_checks(dict(sees, **{"twigs+400%": 0.80}), True)["twigs+400% material"]
+    assert not plant_checks(dict(sees, **{"tangle-20%": 1.0}), True)["tangle<gt"]  # blind to wrong forks
+    assert not plant_checks(dict(sees, **{"twigs+100%": 0.8}), True)["twigs ordered"]  # ties fail
+    lower = {k: 1 - v for k, v in sees.items()}  # a lower-is-better metric
+    assert all(plant_checks(lower, False).values())
+    t = pd.concat([_ladder_table({f"p{i}": (rounding if i < 2 else sees) for i in range(10)}, "skeleton.vf1@1%"),
+                   _ladder_table({f"p{i}": (rounding if i < 1 else sees) for i in range(10)}, "stava.S_T")])
+    v = verdicts(t).set_index("metric")
+    assert v.loc["skeleton.vf1@1%", "verdict"] == "discriminates" and v.loc["skeleton.vf1@1%", "structure"] == \
+        "does not discriminate" and v.loc["skeleton.vf1@1%", "structure_passed"] == 8
+    assert v.loc["stava.S_T", "structure"] == "discriminates"
 
 
 def test_calibration_files_and_the_reports_note(tmp_path):
