@@ -258,4 +258,13 @@ def test_calibration_files_and_the_reports_note(tmp_path):
     back = pd.read_csv(tmp_path / LADDER_FILE)
     assert len(back) == len(t) and set(back["rung"]) == set(good)
     note = calibration_note(tmp_path)
-    assert "0.77" in note and "0.72" in note and "0.57" in note
+    assert "0.77" in note and "0.72" in note and "0.57" in note and "structure column" not in note
+    # with the structure rungs: the note says what the structure column shows, with the ladder's numbers
+    rungs = {"twigs+100%": (0.49, 0.97), "twigs+400%": (0.18, 0.93), "tangle-20%": (0.61, 0.96),
+             "prior-a": (0.03, 0.40), "prior-b": (0.05, 0.42)}
+    t2 = pd.concat([t] + [_ladder_table({f"p{i}": {r: v[k] for r, v in rungs.items()} for i in range(3)}, m)
+                          for k, m in enumerate(("skeleton.branch_f1@1%", "skeleton.vf1@1%"))])
+    write_calibration(t2.assign(species="s", family="f"), tmp_path)
+    note = calibration_note(tmp_path)
+    assert "skeleton.branch_f1@1%" in note and "0.49 and 0.18 on it, 0.97 and 0.93 on vF1" in note
+    assert "0.61, vF1 0.96; the prior 0.04" in note
