@@ -32,6 +32,7 @@ __all__ = [
     "load_toml",
     "validation_message",
     "params_from_options",
+    "unknown_options",
     "jsonable",
 ]
 
@@ -175,6 +176,17 @@ def load_toml(path: str | os.PathLike, model: type[M]) -> M:
 # ---------------------------------------------------------------------------------- method options and statistics
 
 
+def unknown_options(names: Sequence[str], valid: Sequence[str]) -> str:
+    """'unknown option 'x' (did you mean 'y'?); valid: ...' for the option names ``names`` not among ``valid``."""
+    import difflib
+
+    parts = []
+    for name in names:
+        close = difflib.get_close_matches(name, list(valid), n=2, cutoff=0.6)
+        parts.append(repr(name) + (f" (did you mean {' or '.join(map(repr, close))}?)" if close else ""))
+    return f"unknown option{'s' if len(names) > 1 else ''} {', '.join(parts)}; valid: {', '.join(valid)}"
+
+
 def params_from_options(cls: type[P], options: Mapping[str, Any], *, method: str | None = None,
                         also: Sequence[str] = ()) -> P:
     """``cls(**options)`` for a method's frozen parameter dataclass, from a suite's ``[method_options.NAME]``.
@@ -187,8 +199,7 @@ def params_from_options(cls: type[P], options: Mapping[str, Any], *, method: str
     fields = {f.name: f for f in dataclasses.fields(cls)}
     bad = sorted(set(options) - set(fields))
     if bad:
-        valid = ", ".join([*sorted(fields), *also])
-        raise InputError(f"{prefix}unknown option(s) {', '.join(bad)} (valid: {valid})")
+        raise InputError(prefix + unknown_options(bad, [*sorted(fields), *also]))
     values = {k: tuple(v) if isinstance(v, list) and isinstance(fields[k].default, tuple) else v
               for k, v in options.items()}
     try:

@@ -12,7 +12,8 @@ from plantbench.paths import suites_dir
 from plantbench.registry import Registry
 from plantbench.schemas import Strict, read_toml, validation_message
 
-__all__ = ["Suite", "CaseSet", "CaptureSettings", "Sweep", "suites", "load_suite", "apply_override"]
+__all__ = ["Suite", "CaseSet", "CaptureSettings", "Sweep", "suites", "load_suite", "check_method_options",
+           "apply_override"]
 
 
 class CaseSet(Strict):
@@ -178,11 +179,30 @@ suites: Registry[Path] = Registry("suite", _discover)
 
 
 def load_suite(name_or_path: str) -> Suite:
-    """A suite by name, or by path to a TOML file (a case's ``path`` is relative to the file's folder)."""
+    """A suite by name, or by path to a TOML file (a case's ``path`` is relative to the file's folder). Its
+    ``[method_options.NAME]`` tables are checked here (:func:`check_method_options`), before anything runs."""
     path = Path(name_or_path)
     if not (path.suffix == ".toml" and path.exists()):
         path = suites.get(name_or_path)
     try:
-        return Suite.model_validate(read_toml(path), context={"base": str(Path(path).resolve().parent)})
+        suite = Suite.model_validate(read_toml(path), context={"base": str(Path(path).resolve().parent)})
     except ValidationError as exc:
         raise InputError(validation_message(exc), path=path) from None
+    check_method_options(suite, path=path)
+    return suite
+
+
+def check_method_options(suite: Suite, *, path: object = None) -> None:
+    """Every ``[method_options.NAME]`` names a known method, and the method accepts its options: InputError naming
+    ``path`` (the suite file), the table and the option, with a did-you-mean, otherwise. A method checks its options
+    when it has ``check_options(options)`` (every shipped method does); the others see them only when they run."""
+    from plantbench.methods.api import method_from_spec
+
+    for name, options in suite.method_options.items():
+        try:
+            method = method_from_spec(name)
+            check = getattr(method, "check_options", None)
+            if check is not None:
+                check(dict(options))
+        except InputError as exc:
+            raise InputError(str(exc), path=path, field=f"[method_options.{name}]") from None

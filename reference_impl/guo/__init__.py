@@ -49,32 +49,52 @@ def species_prior(species: str | None, *, prior: bool = True, hint=None) -> Spec
     return prior_from_hint(hint)
 
 
+def _split_options(options: dict) -> tuple[bool, str, str, dict, GuoParams]:
+    """(prior, leaves, leaf_depth, leaf__ options, GuoParams) of a suite's ``[method_options.guo]``; InputError on
+    an unknown or invalid one."""
+    options = dict(options)
+    use_prior = options.pop("prior", True)
+    if not isinstance(use_prior, bool):
+        raise InputError(f"guo: prior must be true or false, got {use_prior!r}")
+    leaves = options.pop("leaves", "auto")
+    if leaves not in ("auto", "procedural", "segment", "combined"):
+        raise InputError(f"guo: leaves must be 'auto', 'procedural', 'segment' or 'combined', got {leaves!r}")
+    leaf_depth = options.pop("leaf_depth", "mvs")
+    if leaf_depth not in ("mvs", "oracle"):
+        raise InputError(f"guo: leaf_depth must be 'mvs' or 'oracle', got {leaf_depth!r}")
+    leaf_options = {k[len("leaf__"):]: options.pop(k) for k in list(options) if k.startswith("leaf__")}
+    if leaves == "procedural" and (leaf_options or leaf_depth != "mvs"):
+        raise InputError("guo: leaf_depth and leaf__* options need leaves='segment' or 'combined'")
+    return use_prior, leaves, leaf_depth, leaf_options, params_from_options(options)
+
+
 class Guo:
     name = "guo"
     inputs = "points"
     oracle_when = {"leaf_depth": "oracle"}
     """``leaf_depth="oracle"`` segments the leaves on the exact depth maps: an oracle run."""
 
+    def check_options(self, options: dict) -> None:
+        """Raise InputError on an unknown or invalid option (the planner calls it before any job runs)."""
+        import dataclasses
+
+        from plantbench.schemas import unknown_options
+        from reference_impl.leaves import LeafParams
+
+        leaf_options = _split_options(options)[3]
+        names = [f.name for f in dataclasses.fields(LeafParams)]
+        bad = [f"leaf__{k}" for k in leaf_options if k not in names]
+        if bad:
+            raise InputError("guo: " + unknown_options(bad, [f"leaf__{n}" for n in names]))
+        LeafParams.from_options(leaf_options)
+
     def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None,
                     **options) -> GuoResult:
         """Read ``capture_dir/points.ply``, reconstruct, write skeleton.ply, mesh.ply, leaves.json (and guo.json,
         the run's statistics). Returns the in-memory result."""
-        options = dict(options)
-        use_prior = options.pop("prior", True)
-        if not isinstance(use_prior, bool):
-            raise InputError(f"guo: prior must be true or false, got {use_prior!r}")
-        leaves = options.pop("leaves", "auto")
-        if leaves not in ("auto", "procedural", "segment", "combined"):
-            raise InputError(f"guo: leaves must be 'auto', 'procedural', 'segment' or 'combined', got {leaves!r}")
-        leaf_depth = options.pop("leaf_depth", "mvs")
+        use_prior, leaves, leaf_depth, leaf_options, params = _split_options(options)
         if leaves == "auto":
             leaves = "combined" if (Path(capture_dir) / "depth").is_dir() or leaf_depth != "mvs" else "procedural"
-        leaf_options = {k[len("leaf__"):]: options.pop(k) for k in list(options) if k.startswith("leaf__")}
-        if leaves == "procedural" and (leaf_options or leaf_depth != "mvs"):
-            raise InputError("guo: leaf_depth and leaf__* options need leaves='segment' or 'combined'")
-        if leaf_depth not in ("mvs", "oracle"):
-            raise InputError(f"guo: leaf_depth must be 'mvs' or 'oracle', got {leaf_depth!r}")
-        params = params_from_options(options)
         from plantbench.hints import read_hint
 
         prior = species_prior(species, prior=use_prior, hint=read_hint(capture_dir))

@@ -229,7 +229,8 @@ def prior_from_hint(hint) -> SpeciesPrior:
 def params_from_options(options: dict) -> GuoParams:
     """GuoParams from suite options (:func:`plantbench.schemas.params_from_options`: unknown names raise InputError
     listing the valid ones); values the method cannot run with raise InputError too."""
-    p = schemas.params_from_options(GuoParams, options, method="guo", also=("prior", "leaves"))
+    p = schemas.params_from_options(GuoParams, options, method="guo",
+                                    also=("prior", "leaves", "leaf_depth", "leaf__..."))
     if p.hull_fill not in ("auto", "on", "off"):
         raise InputError(f"guo: hull_fill must be 'auto', 'on' or 'off', got {p.hull_fill!r}")
     if p.candidates < 1:

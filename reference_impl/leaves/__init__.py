@@ -81,6 +81,10 @@ class Leaves:
     oracle_when = {"depth": "oracle"}
     """``depth="oracle"`` segments on the exact depth maps: an oracle run."""
 
+    def check_options(self, options: dict) -> None:
+        """Raise InputError on an unknown or invalid option (the planner calls it before any job runs)."""
+        LeafParams.from_options({k: v for k, v in options.items() if k != "depth"})
+
     def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None,
                     **options) -> None:
         depth = options.pop("depth", "mvs")

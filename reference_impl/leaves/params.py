@@ -11,6 +11,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from plantbench.errors import InputError
+from plantbench.schemas import unknown_options
 
 __all__ = ["LeafParams"]
 
@@ -152,5 +153,5 @@ class LeafParams:
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(options) - names)
         if unknown:
-            raise InputError(f"unknown leaves option(s) {unknown}; known: {sorted(names)}")
+            raise InputError("leaves: " + unknown_options(unknown, sorted(names)))
         return cls(**options)

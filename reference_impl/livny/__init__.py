@@ -22,13 +22,17 @@ class Livny:
     name = "livny"
     inputs = "points"
 
+    def check_options(self, options: dict) -> None:
+        """Raise InputError on an unknown or invalid option (the planner calls it before any job runs)."""
+        params_from_options(LivnyParams, options, method=self.name)
+
     def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None,
                     **options) -> LivnyResult:
         """Read ``capture_dir/points.ply``, reconstruct, write skeleton.ply, mesh.ply and leaves.json.
 
         ``species`` is ignored (Livny et al. use no species knowledge). Returns the in-memory result.
         """
-        params = params_from_options(LivnyParams, options)
+        params = params_from_options(LivnyParams, options, method=self.name)
         points = load_points(capture_dir)
         result = reconstruct_livny(points, seeded_rng(seed, "livny"), params)
         write_reconstruction(out_dir, result.skeleton, mesh=result.mesh, leaves=result.leaves)

@@ -279,6 +279,10 @@ class MVS:
     oracle_when = {"depth": "oracle"}
     """``depth="oracle"`` reads the exact depth and instance maps and plant.json: an oracle run."""
 
+    def check_options(self, options: dict) -> None:
+        """Raise InputError on an unknown or invalid option (the planner calls it before any job runs)."""
+        MVSParams.from_options(options)
+
     def reconstruct(
         self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None, **options
     ) -> None:

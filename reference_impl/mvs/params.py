@@ -11,6 +11,7 @@ import dataclasses
 from dataclasses import dataclass, field
 
 from plantbench.errors import InputError
+from plantbench.schemas import unknown_options
 
 __all__ = ["NeighbourParams", "DepthParams", "FilterParams", "FusionParams", "GroundParams", "SfMParams", "MVSParams"]
 
@@ -234,15 +235,17 @@ class MVSParams:
             elif "__" in key:
                 group, name = key.split("__", 1)
                 if group not in groups:
-                    raise InputError(f"mvs: unknown option group {group!r} (known: {', '.join(groups)})")
+                    raise InputError("mvs: " + unknown_options([key], [f"{g}__..." for g in groups]))
                 names = {f.name for f in dataclasses.fields(groups[group].default_factory)}
                 if name not in names:
-                    raise InputError(f"mvs: unknown option {key!r} (known in {group}: {', '.join(sorted(names))})")
+                    raise InputError("mvs: " + unknown_options([key], [f"{group}__{n}" for n in sorted(names)]))
                 nested.setdefault(group, {})[name] = value
             elif key in {f.name for f in dataclasses.fields(cls)} and key not in groups:
                 top[key] = value
             else:
-                raise InputError(f"mvs: unknown option {key!r}")
+                valid = ["points", *(f.name for f in dataclasses.fields(cls) if f.name not in groups),
+                         *(f"{g}__..." for g in groups)]
+                raise InputError("mvs: " + unknown_options([key], valid))
         for group, values in nested.items():
             top[group] = groups[group].default_factory(**values)
         return cls(**top)

@@ -23,6 +23,10 @@ class Xu:
     name = "xu"
     inputs = "points"
 
+    def check_options(self, options: dict) -> None:
+        """Raise InputError on an unknown or invalid option (the planner calls it before any job runs)."""
+        params_from_options(XuParams, options, method=self.name)
+
     def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None,
                     **options) -> XuResult:
         """Read ``capture_dir/points.ply``, reconstruct, write skeleton.ply, mesh.ply and leaves.json.
@@ -37,7 +41,7 @@ class Xu:
         hint = read_hint(capture_dir)
         if hint is not None and "leaf_size" not in options:
             options = {**options, "leaf_size": hint.leaf_length}
-        params = params_from_options(XuParams, options)
+        params = params_from_options(XuParams, options, method=self.name)
         points = load_points(capture_dir)
         result = reconstruct_xu(points, seeded_rng(seed, "xu"), params)
         write_reconstruction(out_dir, result.skeleton, mesh=result.mesh, leaves=result.leaves)

@@ -151,10 +151,12 @@ def test_suite_options_map_onto_the_parameters():
 
     p = params_from_options(XuParams, {"default_axil_deg": [30.0, 6.0], "spur_bins": 3})
     assert p.default_axil_deg == (30.0, 6.0) and p.spur_bins == 3
-    with pytest.raises(InputError, match=r"unknown option\(s\) nope \(valid: angle_shift_limit, "):
+    with pytest.raises(InputError, match=r"unknown option 'nope'; valid: angle_shift_limit, "):
         params_from_options(XuParams, {"nope": 1})
-    with pytest.raises(InputError, match=r"^guo: unknown option\(s\) nope \(valid: .*, prior, leaves\)"):
+    with pytest.raises(InputError, match=r"^guo: unknown option 'nope'; valid: .*, prior, leaves, leaf_depth"):
         guo_params({"nope": 1})
+    with pytest.raises(InputError, match=r"unknown options 'nope', 'spur_bin' \(did you mean 'spur_bins'\?\)"):
+        params_from_options(XuParams, {"nope": 1, "spur_bin": 2})
     assert guo_params({"tropism": [0.0, 0.0, -1.0]}).tropism == (0.0, 0.0, -1.0)
 
 

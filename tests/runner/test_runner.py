@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from plantbench.errors import InputError
 from plantbench.runner import run_suite
 from plantbench.suites import load_suite
 from tests.runner.conftest import suite_toml
@@ -161,3 +162,29 @@ def test_points_input_links_the_mvs_depth_maps(tmp_path):
         assert (folder / "depth").exists() == with_depth
         if with_depth:
             assert np.load(folder / "depth" / "0000.npz")["depth"].shape == (2, 2)
+
+
+def test_misspelt_method_options_fail_when_the_suite_is_loaded(tmp_path):
+    """A typo in [method_options.NAME] stops `plantbench run` before any job, naming the suite file, the method
+    and the option, with a did-you-mean."""
+    from plantbench.cli import main
+    from plantbench.suites import load_suite
+
+    base = 'name = "typo"\ndescription = "x"\nmethods = ["guo", "mvs"]\n[[cases]]\nspecies = "laurel"\nseeds = [1]\n'
+    cases = {
+        "[method_options.guo]\nkil_factor = 0.5\n": ("[method_options.guo]", "'kil_factor'", "'kill_factor'"),
+        "[method_options.guo]\nleaves = 'combined'\nleaf__min_view = 2\n": ("[method_options.guo]",
+                                                                            "'leaf__min_view'", "'leaf__min_views'"),
+        "[method_options.mvs]\ndepth_params__hypothesis = 64\n": ("[method_options.mvs]", "'depth_params__hypothesis'",
+                                                                  "'depth_params__hypotheses'"),
+        "[method_options.lvny]\nvoxel = 1\n": ("[method_options.lvny]", "'lvny'", "'livny'"),
+    }
+    for i, (table, words) in enumerate(cases.items()):
+        path = tmp_path / f"typo{i}.toml"
+        path.write_text(base + table)
+        with pytest.raises(InputError) as info:
+            load_suite(str(path))
+        msg = str(info.value)
+        assert msg.startswith(str(path)) and all(w in msg for w in words) and "did you mean" in msg
+        assert main(["run", "--suite", str(path), "--out", str(tmp_path / "runs")]) == 2
+    assert not (tmp_path / "runs").exists()  # nothing planned, nothing captured

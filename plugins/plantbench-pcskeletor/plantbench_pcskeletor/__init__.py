@@ -113,7 +113,9 @@ def params_from_options(options: dict) -> LBCParams:
     names = [f.name for f in dataclasses.fields(LBCParams)]
     bad = sorted(set(options) - set(names))
     if bad:
-        raise InputError(f"pcskeletor: unknown option(s) {', '.join(bad)} (valid: {', '.join(names)})")
+        from plantbench.schemas import unknown_options
+
+        raise InputError("pcskeletor: " + unknown_options(bad, names))
     params = LBCParams(**options)
     ds = params.down_sample
     if not (ds == "auto" or (isinstance(ds, int | float) and (ds == -1 or ds > 0))):
@@ -401,6 +403,10 @@ class PCSkeletor:
 
     name = "pcskeletor"
     inputs = "points"
+
+    def check_options(self, options: dict) -> None:
+        """Raise InputError on an unknown or invalid option (the planner calls it before any job runs)."""
+        params_from_options(options)
 
     def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None,
                     **options) -> Skeleton:
