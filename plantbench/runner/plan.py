@@ -21,6 +21,7 @@ from typing import Any
 
 from plantbench.methods.api import ORACLE_CLOUD, ExternalCommand, method_from_spec, split_cloud
 from plantbench.paths import project_root
+from plantbench.seeding import derive_seed
 from plantbench.suites import Suite, apply_override
 
 __all__ = ["Job", "Cell", "Plan", "make_plan", "content_hash", "code_hash", "TYPICAL_SECONDS"]
@@ -288,9 +289,13 @@ def _generated_cases(plan: Plan, s: Suite, case_set, sweep_value, version_code: 
                  version_code["plant"]]), {"species": case_set.species, "seed": seed, "scale": case_set.scale},
                 timeout_s=s.timeout_s))
             capture = s.capture.model_dump(mode="json")
+            # each case its own capture stream (textures, render and scan noise), the same in every suite that
+            # captures this plant with these settings (so their caches share it)
+            capture_seed = derive_seed(s.root_seed, "capture", case_set.species, seed)
             case_key = plan.add(Job("capture", content_hash(
-                ["capture", plant_key, capture, s.root_seed, version_code["capture"], version_code["llvm"]]),
-                {"plant": plant_key, "settings": capture, "seed": seed, "root_seed": s.root_seed},
+                ["capture", plant_key, capture, s.root_seed, capture_seed, version_code["capture"],
+                 version_code["llvm"]]),
+                {"plant": plant_key, "settings": capture, "seed": capture_seed, "root_seed": s.root_seed},
                 deps=(plant_key,), timeout_s=s.timeout_s))
         yield _Case(case_id, case_set.species, spec.family, seed, case_key, case_set.species, hint)
 

@@ -230,3 +230,25 @@ def test_oracle_cloud_cells_read_the_mvs_stage_oracle_cloud():
         bad = Suite.model_validate({**base, "methods": methods, "source": source})
         with pytest.raises(InputError, match=why):
             make_plan(bad)
+
+
+def test_each_case_has_its_own_capture_stream_shared_across_suites():
+    """Two plants of one suite with the same seed are captured with different streams (textures, render and scan
+    noise); the same plant in another suite with the same capture settings has the same capture job (one cache
+    entry), and another root seed gives another stream."""
+    from plantbench.runner.plan import make_plan
+    from plantbench.suites import Suite
+
+    def captures(name, species, root_seed=0):
+        s = Suite(name=name, description="t", root_seed=root_seed, methods=["gt"],
+                  cases=[{"species": sp, "seeds": [1]} for sp in species])
+        return {j.params["plant"]: j for j in make_plan(s).jobs.values() if j.kind == "capture"}
+
+    both = captures("a", ["laurel", "maple"])
+    seeds = [j.params["seed"] for j in both.values()]
+    assert len(set(seeds)) == 2 and all(isinstance(x, int) and x >= 0 for x in seeds)
+    alone = captures("b", ["maple"])
+    (plant, job), = alone.items()
+    assert both[plant].key == job.key and both[plant].params["seed"] == job.params["seed"]
+    other_root = captures("b", ["maple"], root_seed=3)
+    assert next(iter(other_root.values())).params["seed"] != job.params["seed"]
