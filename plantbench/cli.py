@@ -222,9 +222,12 @@ def run(
         f"{result.run_dir}: {st['computed']} jobs computed, {st['reused']} reused from the cache, "
         f"{st['failed']} failed ({st['skipped']} skipped after an upstream failure), {result.seconds:.1f} s"
     )
-    from plantbench.report.tables import summary_table
+    from plantbench.report.gate import read_run_meta
+    from plantbench.report.tables import summary_lines
 
-    console.print(summary_table(result.table))
+    oracles = tuple(read_run_meta(result.run_dir).get("oracles") or ())
+    for line in summary_lines(result.table, oracles=oracles):
+        typer.echo(line)
 
 
 @app.command()
@@ -711,8 +714,7 @@ def metrics_cmd(
     headline metrics the report leads with and `plantbench gate` checks."""
     import json
 
-    from plantbench.metrics.info import METRICS
-    from plantbench.report.tables import HEADLINE
+    from plantbench.metrics.info import HEADLINE, METRICS
 
     names = list(HEADLINE) if headline else list(METRICS)
     rows = [METRICS[n] for n in names]

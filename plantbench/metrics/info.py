@@ -1,4 +1,8 @@
-"""The table of metrics: every name :func:`plantbench.metrics.evaluate.evaluate` writes, with its unit and direction.
+"""The table of metrics: every name :func:`plantbench.metrics.evaluate.evaluate` writes, with its unit and direction,
+and the lists every table, the gate and the calibration take from it (the one place they are defined):
+:data:`HEADLINE` (the report's headline, ``plantbench metrics --headline``, run.json's ``headline``) and
+:data:`KEY_METRICS` (the headline, then the reference paper's and the older columns: the report's first table and
+the gated metrics). A metric's short label and its gate floor are fields of its :class:`MetricInfo`.
 
 ``higher_is_better`` is None for descriptive values (a count, a height) that have no better direction; the gate
 should not gate those.
@@ -11,7 +15,8 @@ from dataclasses import dataclass
 from plantbench.metrics.points import TAU_FRACTIONS, tau_label
 from plantbench.metrics.skeleton import HEIGHT_FRACTIONS, STRUCTURE_FRACTION, THRESHOLDS
 
-__all__ = ["MetricInfo", "METRICS", "HEADLINE_FIDELITY", "HEADLINE_STRUCTURE", "HEADLINE_GT_FREE"]
+__all__ = ["MetricInfo", "METRICS", "HEADLINE", "HEADLINE_FIDELITY", "HEADLINE_STRUCTURE", "HEADLINE_GT_FREE",
+           "KEY_METRICS", "short_label"]
 
 
 @dataclass(frozen=True)
@@ -26,6 +31,11 @@ class MetricInfo:
     """direction of improvement; None for a descriptive value"""
     description: str
     """one line: what it measures and the reference that defines it"""
+    short: str | None = None
+    """a label of at most 11 characters for narrow tables (the run summary), tolerance and unit in it"""
+    floor: float | None = None
+    """the gate's smallest tolerance, in the metric's unit: a change below it is never a regression, even in a cell
+    the variability study saw perfectly stable (a key metric has one)"""
 
 
 METRICS: dict[str, MetricInfo] = {}
@@ -34,6 +44,12 @@ METRICS: dict[str, MetricInfo] = {}
 def _add(name: str, unit: str, higher: bool | None, description: str) -> None:
     assert name not in METRICS, name
     METRICS[name] = MetricInfo(name, unit, higher, description)
+
+
+def short_label(name: str) -> str:
+    """The metric's short label (:attr:`MetricInfo.short`), or its name."""
+    info = METRICS.get(name)
+    return info.short if info is not None and info.short else name
 
 
 def _add_group(prefix: str, unit: str, higher: bool | None, descriptions: dict[str, str]) -> None:
@@ -109,10 +125,11 @@ for _f in HEIGHT_FRACTIONS:
     for _k in ("precision", "recall", "f1"):
         _add(f"skeleton.l{_k}@{tau_label(_f)}", "", True,
              f"length-weighted skeleton {_k} within {tau_label(_f)} of plant height (every metre of branch alike)")
-for _k in ("precision", "recall", "f1"):
+for _k, _what in (("precision", "matched / reconstructed branches"), ("recall", "matched / true branches"),
+                  ("f1", "2 matched / (true + reconstructed branches)")):
     _add(f"skeleton.branch_{_k}@{tau_label(STRUCTURE_FRACTION)}", "", True,
-         f"branch-level {_k}: branches (Stava chains) with most of their length within {tau_label(STRUCTURE_FRACTION)}"
-         " of plant height of one branch of the other skeleton")
+         f"branch-level {_k}, {_what}: branches (Stava chains) matched one to one where more than half of each lies "
+         f"within {tau_label(STRUCTURE_FRACTION)} of plant height of the other")
 _add("skeleton.branch_count_log2_error", "", False, "|log2(branch count / GT branch count)|: doublings between the counts")
 for _f in HEIGHT_FRACTIONS:
     _add(f"support.skeleton@{tau_label(_f)}", "", True,
@@ -130,12 +147,40 @@ _add("skeleton.crown_area_m2", "m2", None,
      "reconstructed crown projection area: 2D convex hull of the skeleton nodes' (x, y); needs no ground truth")
 _add("skeleton.crown_area_rel_error", "", False, "|crown projection area - GT| / GT")
 
+HEADLINE = ("skeleton.vf1@1%", "skeleton.branch_f1@1%", "surface.wood.fscore@0.5%", "leaves.strict_f1",
+            "support.skeleton@1%")
+"""The report's headline, first in every table: the skeleton's volume (vF1) and structure (branch F1), one surface
+and one leaf metric, each of which ``plantbench calibrate`` found to tell a faithful reconstruction from a plausible
+one (reports/calibration/), and the GT-free skeleton support."""
 HEADLINE_STRUCTURE = ("skeleton.branch_f1@1%",)
-"""The headline structure metric: the branch-level F1, which ``plantbench calibrate`` found to see invented
-branches and wrong forks besides telling a faithful reconstruction from a plausible one (reports/calibration/)."""
-HEADLINE_FIDELITY = ("skeleton.vf1@1%", *HEADLINE_STRUCTURE, "surface.wood.fscore@0.5%", "leaves.strict_f1")
-"""The headline fidelity metrics: the skeleton's volume (vF1) and structure (:data:`HEADLINE_STRUCTURE`), one
-surface and one leaf metric, each of which ``plantbench calibrate`` found to tell a faithful reconstruction from a
-plausible one (reports/calibration/)."""
+"""The headline's structure metric: it also passes the calibration's structure checks (invented branches, wrong
+forks)."""
 HEADLINE_GT_FREE = ("support.skeleton@1%",)
-"""The headline metric that needs no ground truth (real captures)."""
+"""The headline metric that needs no ground truth (real captures); not a fidelity metric (it cannot see missing
+branches)."""
+HEADLINE_FIDELITY = tuple(m for m in HEADLINE if m not in HEADLINE_GT_FREE)
+"""The headline's fidelity metrics: those the calibration must find discriminating."""
+KEY_METRICS = (*HEADLINE, "stava.S_T", "mesh_to_surface.D_cm", "mesh_to_surface.sigma_cm", "mesh_to_scan.D_cm",
+               "reprojection.error", "reprojection.iou", "leaves.accuracy", "skeleton.f1@1.0", "points.all.fscore@1%")
+"""The headline, then the reference paper's and the older columns kept for reproduction: the report's first table
+(with the running time) and the metrics the gate compares with the baseline."""
+
+_LABELS_AND_FLOORS = {
+    "skeleton.vf1@1%": ("vF1 1%H", 0.005),
+    "skeleton.branch_f1@1%": ("branch F1", 0.005),
+    "surface.wood.fscore@0.5%": ("woodF 0.5%H", 0.005),
+    "leaves.strict_f1": ("leaf F1", 0.005),
+    "support.skeleton@1%": ("support 1%H", 0.005),
+    "stava.S_T": ("S_T", 0.005),
+    "mesh_to_surface.D_cm": ("D cm", 0.05),
+    "mesh_to_surface.sigma_cm": ("sigma cm", 0.05),
+    "mesh_to_scan.D_cm": ("D scan cm", 0.05),
+    "reprojection.error": ("reproj err", 0.005),
+    "reprojection.iou": ("reproj IoU", 0.005),
+    "leaves.accuracy": ("leaf acc", 0.01),
+    "skeleton.f1@1.0": ("skel F1 1r", 0.005),
+    "points.all.fscore@1%": ("points F1%H", 0.005),
+}
+for _name, (_short, _floor) in _LABELS_AND_FLOORS.items():
+    METRICS[_name] = MetricInfo(**{**vars(METRICS[_name]), "short": _short, "floor": _floor})
+assert set(_LABELS_AND_FLOORS) == set(KEY_METRICS) and all(len(m.short or "") <= 11 for m in METRICS.values())

@@ -1,6 +1,6 @@
 """``plantbench gate``: compare a run's headline metrics, per method and case, with a committed baseline.
 
-The baseline (``reports/baseline.json``) holds the reference value of every headline metric (:data:`HEADLINE`) of
+The baseline (``reports/baseline.json``) holds the reference value of every gated metric (:data:`GATED`: the headline and the paper's columns) of
 every (method, case) cell of a suite, and of each method's mean over the cases (case :data:`MEAN`), with the
 metric's direction. The tolerances (``reports/tolerances.json``,
 beside it) come from the variability study (:mod:`plantbench.report.variability`): the suite run again under
@@ -20,34 +20,21 @@ from pydantic import Field
 
 from plantbench.errors import InputError
 from plantbench.io.atomic import write_json
-from plantbench.report.tables import KEY_METRICS
+from plantbench.metrics.info import KEY_METRICS, METRICS
 from plantbench.schemas import Strict, load_json
 
-__all__ = ["HEADLINE", "FLOORS", "MEAN", "BaselineEntry", "Baseline", "ToleranceEntry", "Tolerances", "read_results",
+__all__ = ["GATED", "FLOORS", "MEAN", "BaselineEntry", "Baseline", "ToleranceEntry", "Tolerances", "read_results",
            "read_run_meta", "cell_values", "compare", "make_baseline", "write_baseline", "load_baseline", "load_tolerances",
            "write_tolerances", "tolerances_path"]
 
-HEADLINE = tuple(m for m in KEY_METRICS if m != "runtime_s")
-"""The gated metrics: the report's key metrics (:data:`plantbench.report.tables.KEY_METRICS`) less running time."""
+GATED = KEY_METRICS
+"""The gated metrics: the headline and the reference paper's columns (:data:`plantbench.metrics.info.KEY_METRICS`);
+not the running time."""
 
-FLOORS = {
-    "skeleton.vf1@1%": 0.005,
-    "skeleton.branch_f1@1%": 0.005,
-    "surface.wood.fscore@0.5%": 0.005,
-    "leaves.strict_f1": 0.005,
-    "support.skeleton@1%": 0.005,
-    "stava.S_T": 0.005,
-    "mesh_to_surface.D_cm": 0.05,
-    "mesh_to_surface.sigma_cm": 0.05,
-    "mesh_to_scan.D_cm": 0.05,
-    "reprojection.error": 0.005,
-    "reprojection.iou": 0.005,
-    "leaves.accuracy": 0.01,
-    "skeleton.f1@1.0": 0.005,
-    "points.all.fscore@1%": 0.005,
-}
-"""Smallest tolerance per headline metric, in its unit: a change below it is never a regression, even in a cell the
-study saw perfectly stable (the ground truth's own rows, a deterministic method)."""
+FLOORS = {m: METRICS[m].floor for m in GATED}
+"""Smallest tolerance per gated metric, in its unit (:attr:`plantbench.metrics.info.MetricInfo.floor`): a change
+below it is never a regression, even in a cell the study saw perfectly stable (the ground truth's own rows, a
+deterministic method)."""
 
 
 class BaselineEntry(Strict):
@@ -129,7 +116,7 @@ MEAN = "mean"
 """The case name of a method's mean over the suite's cases (the number a paper table shows), gated beside the cases."""
 
 
-def cell_values(table, metrics: tuple[str, ...] = HEADLINE) -> dict[tuple[str, str, str], float]:
+def cell_values(table, metrics: tuple[str, ...] = GATED) -> dict[tuple[str, str, str], float]:
     """(method, case, metric) -> value of each headline metric in ``table``, NaN where the cell failed; and
     (method, :data:`MEAN`, metric) -> the mean over the method's cases (NaN when one of them failed)."""
     rows = table[table["metric"].isin(metrics) & (table["case"] != MEAN)]  # a table's own mean rows are recomputed

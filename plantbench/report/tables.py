@@ -7,49 +7,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from plantbench.metrics.info import HEADLINE_FIDELITY, HEADLINE_GT_FREE
+from plantbench.metrics.info import HEADLINE, short_label
+from plantbench.metrics.info import KEY_METRICS as _KEY
 
-__all__ = ["bootstrap_ci", "aggregate", "summary_table", "KEY_METRICS", "metric_info", "paired_differences",
-           "format_value", "HEADLINE", "compare_runs"]
+__all__ = ["bootstrap_ci", "aggregate", "KEY_METRICS", "metric_info", "paired_differences",
+           "format_value", "HEADLINE", "compare_runs", "summary_lines"]
 
-HEADLINE = HEADLINE_FIDELITY + HEADLINE_GT_FREE
-"""The calibrated fidelity metrics (:data:`plantbench.metrics.info.HEADLINE_FIDELITY`) and the GT-free skeleton
-support: the report's headline, first in every table (``plantbench metrics --headline``, run.json's ``headline``)."""
-
-# the columns shown first (when present), in this order: the headline, then the paper's and the older ones
-KEY_METRICS = (
-    *HEADLINE,
-    "stava.S_T",
-    "mesh_to_surface.D_cm",
-    "mesh_to_surface.sigma_cm",
-    "mesh_to_scan.D_cm",
-    "reprojection.error",
-    "reprojection.iou",
-    "leaves.accuracy",
-    "skeleton.f1@1.0",
-    "points.all.fscore@1%",
-    "runtime_s",
-)
-
-
-SHORT_LABELS = {
-    "skeleton.vf1@1%": "skeleton vF1 1%H",
-    "skeleton.branch_f1@1%": "branch F1 1%H",
-    "surface.wood.fscore@0.5%": "wood F 0.5%H",
-    "leaves.strict_f1": "leaf F1 strict",
-    "support.skeleton@1%": "support 1%H",
-    "stava.S_T": "S_T",
-    "mesh_to_surface.D_cm": "D cm",
-    "mesh_to_surface.sigma_cm": "sigma cm",
-    "mesh_to_scan.D_cm": "D scan cm",
-    "reprojection.error": "reproj. err",
-    "reprojection.iou": "reproj. IoU",
-    "leaves.accuracy": "leaf count acc",
-    "skeleton.f1@1.0": "skeleton F1 1r",
-    "points.all.fscore@1%": "points F 1%H",
-    "runtime_s": "runtime s",
-}
-"""Short labels (unit and tolerance in the name) for the terminal table, which must fit 80 columns."""
+KEY_METRICS = (*_KEY, "runtime_s")
+"""The columns of the report's first table, in this order (when present): :data:`plantbench.metrics.info.KEY_METRICS`
+and the running time."""
 
 
 def metric_info(name: str):
@@ -176,33 +142,44 @@ def compare_runs(table_a, table_b, *, label_a: str = "a", label_b: str = "b", me
     return pd.DataFrame(rows, columns=cols)
 
 
-def _fmt(mean: float, lo: float, hi: float) -> str:
-    """'mean ± half-width of the interval' (compact, for terminals)."""
+def _compact(mean: float, lo: float, hi: float) -> str:
+    """'0.531±0.12': the mean to 3 significant digits, the half-width of its interval to 2 (no '±' for one case)."""
     if not np.isfinite(mean):
         return "-"
-    if not np.isfinite(lo) or lo == hi:
-        return f"{mean:.3g}"
-    return f"{mean:.3g} ±{(hi - lo) / 2:.2g}"
+    text = f"{mean:.3f}" if abs(mean) < 10 else f"{mean:.3g}"
+    if np.isfinite(lo) and lo != hi:
+        text += f"±{(hi - lo) / 2:.2g}"
+    return text
 
 
-def summary_table(table, metrics: tuple[str, ...] = KEY_METRICS):
-    """A rich Table for the terminal: one row per key metric, one column per method, cells 'mean [95 % CI]',
-    and a last row counting failed cells (metrics down the side fit a terminal better than across)."""
-    from rich.table import Table
-
+def summary_lines(table, metrics: tuple[str, ...] = HEADLINE, *, oracles: tuple[str, ...] = ()) -> list[str]:
+    """The run summary as plain text: methods down the side, the headline metrics across (short labels), cells
+    'mean±half-width of the 95 % bootstrap interval over cases', a last column counting failed cells. Plain
+    characters only, fitting an 80-column terminal for the headline (no cell is cut: the columns are as wide as
+    their widest entry), so it reads the same on a terminal, in a pipe and in a CI log. ``oracles``: methods marked
+    with '*' (they read ground truth)."""
     agg = aggregate(table)
     present = [m for m in metrics if m in set(agg["metric"])]
-    methods = sorted(agg["method"].unique())
-    out = Table("metric", *methods, title="results: mean ± half-width of the 95 % bootstrap CI over cases "
-                "(H: plant height, r: local radius; `plantbench metrics` defines each)")
+    methods = sorted(agg["method"].unique(), key=lambda m: (m not in oracles, m))
     idx = agg.set_index(["metric", "method"])
-    for m in present:
-        info = metric_info(m)
-        label = SHORT_LABELS.get(m, m) + ("" if info is None or info.higher_is_better is None
-                                          else " ↑" if info.higher_is_better else " ↓")
-        out.add_row(label, *(_fmt(*idx.loc[(m, meth), ["mean", "lo", "hi"]]) if (m, meth) in idx.index else "-"
-                             for meth in methods))
     cells = table.groupby(["method", "case"])["status"].agg(lambda s: (s != "ok").any())
     failed = cells.groupby(level=0).sum()
-    out.add_row("failed cells", *(str(int(failed.get(meth, 0))) for meth in methods))
+    header = ["method", *(short_label(m) for m in present)]
+    rows = [[m + (" *" if m in oracles else ""),
+             *(_compact(*idx.loc[(m_, m), ["mean", "lo", "hi"]]) if (m_, m) in idx.index else "-" for m_ in present)]
+            for m in methods]
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+
+    def line(cols: list[str]) -> str:
+        return "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(cols, widths))).rstrip()
+
+    cases = table["case"].nunique()
+    arrows = {("↑" if (metric_info(m) and metric_info(m).higher_is_better) else "↓") for m in present}
+    out = [f"mean±half-width of the 95 % bootstrap interval over {cases} case{'s' * (cases != 1)}"
+           + (" (higher is better)" if arrows == {"↑"} else ""), line(header), *(line(r) for r in rows)]
+    bad = [f"{m} {int(failed[m])}" for m in methods if failed.get(m, 0)]
+    out.append("failed cells: " + (", ".join(bad) if bad else "none"))
+    if oracles:
+        out.append("* oracle: reads ground truth")
+    out.append("every metric: results.csv; tables and figures: plantbench report RUN")
     return out

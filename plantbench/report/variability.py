@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plantbench.report.gate import FLOORS, HEADLINE, ToleranceEntry, Tolerances, cell_values
+from plantbench.report.gate import FLOORS, GATED, ToleranceEntry, Tolerances, cell_values
 
 __all__ = ["Perturbation", "PERTURBATIONS", "available_perturbations", "study_table", "tolerances_from_study",
            "run_study", "STUDY_COLUMNS", "another_cpu", "extend_study", "study_perturbations"]
@@ -164,7 +164,7 @@ def tolerances_from_study(study, suite: str, *, reference: str = "reference",
         bound = max(terms, key=terms.get)
         entries.append(ToleranceEntry(method=method, case=case, metric=metric, tolerance=terms[bound], sd=sd,
                                       max_change=max_change, runs=int(values.size), bound=bound))
-    return Tolerances(suite=suite, perturbations=perturbations, floors={m: floors[m] for m in HEADLINE if m in floors},
+    return Tolerances(suite=suite, perturbations=perturbations, floors={m: floors[m] for m in GATED if m in floors},
                       entries=entries)
 
 
@@ -200,7 +200,7 @@ def study_markdown(study, tolerances: Tolerances, perturbations: list[Perturbati
     lines += ["", "## |change| from the reference run, per headline metric (median / largest over the cells)", ""]
     names = [p.name for p in perturbations if p.name != "reference"]
     lines += ["| metric | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
-    for metric in HEADLINE:
+    for metric in GATED:
         cells = []
         for name in names:
             run = study[(study["perturbation"] == name) & (study["metric"] == metric)]
@@ -213,7 +213,7 @@ def study_markdown(study, tolerances: Tolerances, perturbations: list[Perturbati
     lines += ["", f"## Tolerances ({tolerances.rule}), per method and metric: median over cases [largest]", ""]
     methods = sorted(tol["method"].unique()) if len(tol) else []
     lines += ["| metric | floor | " + " | ".join(methods) + " |", "|---|---|" + "---|" * len(methods)]
-    for metric in HEADLINE:
+    for metric in GATED:
         t = tol[tol["metric"] == metric] if len(tol) else tol
         if t.empty:
             continue

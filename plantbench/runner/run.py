@@ -84,7 +84,7 @@ def run_metadata(suite: Suite, methods: list[str]) -> dict:
     """What every results file records: versions, git SHA, config hash, Mitsuba variant."""
     from plantbench import __version__
     from plantbench.backend import llvm_target_id, select_variant
-    from plantbench.report.tables import HEADLINE
+    from plantbench.metrics.info import HEADLINE
 
     pkgs = {}
     for name in PACKAGES:

@@ -141,3 +141,27 @@ def test_family_study_ranks_methods_per_family(tmp_path, rng):
     assert "gt" not in set(ranking["method"])
     text = family_study(t)
     assert "| stava.S_T |" in text and "-1.00" in text
+
+
+def test_run_summary_is_plain_and_fits_80_columns(rng):
+    """The quick suite's ten method columns as rows and the headline across: no box-drawing character, no value cut
+    to an ellipsis, every line within 80 columns; means and half-widths as aggregate computes them."""
+    from plantbench.metrics.info import HEADLINE
+    from plantbench.report.tables import summary_lines
+
+    methods = ["gt", "prior", "mvs", "livny", "xu", "guo", "livny@oracle", "xu@oracle", "guo@oracle"]
+    rows = [{"case": f"c{c}", "species": "s", "family": "f", "seed": 1, "method": m, "sweep": None, "metric": metric,
+             "value": float(rng.uniform(0, 1)), "status": "failed" if (m, c) == ("xu", 2) else "ok"}
+            for m in methods for c in range(3) for metric in HEADLINE]
+    table = pd.DataFrame(rows)
+    table.loc[table["status"] != "ok", "value"] = np.nan
+    lines = summary_lines(table, oracles=("gt", "prior", "livny@oracle", "xu@oracle", "guo@oracle"))
+    text = "\n".join(lines)
+    assert all(len(line) <= 80 for line in lines)
+    assert "…" not in text and not any(0x2500 <= ord(ch) <= 0x257F for ch in text)
+    assert "failed cells: xu 1" in text and "* oracle" in text
+    agg = aggregate(table).set_index(["metric", "method"])
+    guo = next(line for line in lines if line.startswith("guo "))
+    mean, lo, hi = agg.loc[(HEADLINE[0], "guo"), ["mean", "lo", "hi"]]
+    assert guo.split()[1] == f"{mean:.3f}±{(hi - lo) / 2:.2g}"
+    assert lines[1].split()[0] == "method" and len(lines) == 2 + len(methods) + 3

@@ -6,8 +6,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from plantbench.metrics.info import HEADLINE
 from plantbench.report.report import _BEST_MARK, comparison_table, headline_table, render_table, wide_table
-from plantbench.report.tables import HEADLINE, compare_runs, format_value, paired_differences
+from plantbench.report.tables import compare_runs, format_value, paired_differences
 
 
 def _table(values: dict[str, dict[str, list[float]]]) -> pd.DataFrame:
