@@ -93,51 +93,56 @@ def generate(
     )
 
 
-@app.command()
-def capture(
-    case: Annotated[Path, typer.Argument(help="Case folder holding plant/.")],
-    views: Annotated[int, typer.Option(help="Number of views.")] = 20,
-    size: Annotated[str, typer.Option(help="Image size WxH.")] = "512x512",
-    spp: Annotated[int, typer.Option(help="Samples per pixel of the path tracer.")] = 16,
-    elevation: Annotated[str, typer.Option(help="Camera elevation band LO,HI in degrees.")] = "5,45",
-    scan: Annotated[bool, typer.Option("--scan/--no-scan", help="Also simulate a laser scan.")] = True,
-    stations: Annotated[int, typer.Option(help="Laser scanner stations.")] = 1,
-    scan_spacing: Annotated[Optional[float], typer.Option(  # noqa: UP045
-        help="Scanner beam spacing at the plant, metres (sets the angular step) [default: 0.05 deg steps].")] = None,
-    registration_error: Annotated[float, typer.Option(
-        help="RMS misregistration of each station after the first, metres.")] = 0.0,
-    range_noise_per_m: Annotated[float, typer.Option(
-        help="Range noise growth: sigma = 2 mm + this x range.")] = 0.0,
-    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
-) -> None:
-    """Render multi-view images with exact depth/instance maps and cameras, and simulate a laser scan."""
-    from plantbench.capture import as_options, capture_case
+def _settings_parameters(model) -> list:
+    """One keyword-only ``--NAME`` option per field of the pydantic ``model``: its type, default and description as
+    the model has them (a bool as ``--NAME/--no-NAME``, a pair as two values), so the command's flags are the
+    model's fields and nothing else."""
+    import inspect
 
-    try:
-        w, h = (int(x) for x in size.lower().split("x"))
-    except ValueError:
-        raise InputError(f"--size must look like 512x512, got {size!r}") from None
-    try:
-        lo, hi = (float(x) for x in elevation.split(","))
-    except ValueError:
-        raise InputError(f"--elevation must look like 5,45, got {elevation!r}") from None
-    options = as_options({"views": views, "width": w, "height": h, "spp": spp, "elevation": (lo, hi), "scan": scan,
-                          "stations": stations, "scan_spacing": scan_spacing,
-                          "registration_error": registration_error, "range_noise_per_m": range_noise_per_m})
-    folder = capture_case(case, options, seed=seed)
+    return [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=f.default,
+                              annotation=Annotated[f.annotation, typer.Option(help=(f.description or name) + ".")])
+            for name, f in model.model_fields.items()]
+
+
+def capture(case: Path, seed: int, **settings) -> None:
+    """Render multi-view images with exact depth/instance maps and cameras, and simulate a laser scan. Every
+    capture setting is a flag (plantbench.capture.settings.CaptureOptions; a suite's [capture] table takes the same
+    names)."""
     import json
 
+    from plantbench.capture import as_options, capture_case
+
+    options = as_options(settings)
+    folder = capture_case(case, options, seed=seed)
     scanned = ""
-    if scan:
+    if options.scan:
         doc = json.loads((Path(case) / "scan" / "stations.json").read_text())
-        scanned = (f"; scan from {stations} station(s), {doc['points']} points at a median spacing of "
+        scanned = (f"; scan from {options.stations} station(s), {doc['points']} points at a median spacing of "
                    f"{100 * doc['median_spacing']:.2f} cm")
     leaves = json.loads((folder / "capture.json").read_text()).get("leaf_pixels") or {}
     if leaves.get("median_px") is not None:
         scanned += (f"; leaves cover {leaves['median_px']:.0f} px per view where visible (median), "
                     f"{leaves['resolved_2_views']} of {leaves['leaves']} cover >= {leaves['resolved_px']} px "
                     "in >= 2 views")
-    typer.echo(f"{folder}: {views} views at {w}x{h}, {spp} spp{scanned}")
+    typer.echo(f"{folder}: {options.views} views at {options.width}x{options.height}, {options.spp} spp{scanned}")
+
+
+def _register_capture() -> None:
+    import inspect
+
+    from plantbench.capture.settings import CaptureOptions
+
+    capture.__signature__ = inspect.Signature([
+        inspect.Parameter("case", inspect.Parameter.POSITIONAL_OR_KEYWORD,
+                          annotation=Annotated[Path, typer.Argument(help="Case folder holding plant/.")]),
+        inspect.Parameter("seed", inspect.Parameter.KEYWORD_ONLY, default=0,
+                          annotation=Annotated[int, typer.Option(help="Random seed of the capture (textures, render "
+                                                                      "and scan noise).")]),
+        *_settings_parameters(CaptureOptions)])
+    app.command()(capture)
+
+
+_register_capture()
 
 
 @app.command()

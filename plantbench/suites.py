@@ -77,8 +77,8 @@ class CaseSet(Strict):
 
 class CaptureSettings(Strict):
     views: int = Field(default=20, ge=1, le=200, description="number of views")
-    width: int = Field(default=512, ge=16, le=4096)
-    height: int = Field(default=512, ge=16, le=4096)
+    width: int = Field(default=512, ge=16, le=4096, description="image width, pixels")
+    height: int = Field(default=512, ge=16, le=4096, description="image height, pixels")
     spp: int = Field(default=16, ge=1, le=4096, description="samples per pixel of the path tracer")
     elevation: tuple[float, float] = Field(default=(5.0, 45.0), description="degrees above the horizon, low and high")
     scan: bool = Field(default=True, description="also simulate a terrestrial laser scan")

@@ -76,3 +76,20 @@ def test_compare_two_runs_in_a_pipe(tmp_path):
     assert pd.read_csv(tmp_path / "cmp.csv")["verdict"].tolist() == ["oracle better"]
     same = plantbench("compare", str(tmp_path / "a"), str(tmp_path / "b"), "--label-a", "x", "--label-b", "x")
     assert same.returncode == 2 and "must differ" in same.stderr
+
+
+def test_capture_flags_are_the_capture_settings(tmp_path):
+    """`plantbench capture`'s flags are generated from CaptureOptions: every field has one, with its description;
+    an invalid value is one line naming the setting (exit 2) and writes nothing."""
+    from plantbench.capture.settings import CaptureOptions
+
+    out = plantbench("capture", "--help", env={"COLUMNS": "200", **__import__("os").environ})
+    assert out.returncode == 0
+    for name, field in CaptureOptions.model_fields.items():
+        flag = "--" + name.replace("_", "-")
+        assert flag in out.stdout, flag
+    assert "--no-scan" in out.stdout and "--seed" in out.stdout
+    (tmp_path / "case").mkdir()
+    bad = plantbench("capture", str(tmp_path / "case"), "--views", "0")
+    assert bad.returncode == 2 and "views" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+    assert not any((tmp_path / "case").iterdir())
