@@ -1,5 +1,6 @@
 """The CLI as a user sees it: exit codes and one-line errors, in a subprocess."""
 
+import os
 import subprocess
 import sys
 
@@ -83,11 +84,10 @@ def test_capture_flags_are_the_capture_settings(tmp_path):
     an invalid value is one line naming the setting (exit 2) and writes nothing."""
     from plantbench.capture.settings import CaptureOptions
 
-    out = plantbench("capture", "--help", env={"COLUMNS": "200", **__import__("os").environ})
+    out = plantbench("capture", "--help", env={**os.environ, "COLUMNS": "200"})
     assert out.returncode == 0
-    for name, field in CaptureOptions.model_fields.items():
-        flag = "--" + name.replace("_", "-")
-        assert flag in out.stdout, flag
+    for name in CaptureOptions.model_fields:
+        assert "--" + name.replace("_", "-") in out.stdout, name
     assert "--no-scan" in out.stdout and "--seed" in out.stdout
     (tmp_path / "case").mkdir()
     bad = plantbench("capture", str(tmp_path / "case"), "--views", "0")
