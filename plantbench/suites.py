@@ -16,10 +16,18 @@ __all__ = ["Suite", "CaseSet", "CaptureSettings", "Sweep", "suites", "load_suite
            "apply_override"]
 
 
+REFERENCE_TOOLS = ("treeqsm", "simpleforest", "archi")
+"""The QSM tools whose cylinder tables a real case may name as references (:mod:`plantbench.io.references`)."""
+
+
 class CaseSet(Strict):
-    """Plants of one species (``species`` and ``seeds``), or one case folder (``path``: a real capture as
-    ``plantbench import scan`` / ``import views`` makes it, or any folder with scan/ and/or views/), whose
-    ``species``, if given, is the species hint the methods receive (none without it)."""
+    """Plants of one species (``species`` and ``seeds``), one case folder (``path``: a real capture as
+    ``plantbench import scan`` / ``import views`` makes it, or any folder with scan/ and/or views/), or one scan file
+    (``scan``: imported when the suite runs, as ``plantbench import scan`` does, with ``units`` and ``up``), whose
+    ``species``, if given, is the species hint the methods receive (none without it). A path that starts with
+    ``data:`` is relative to the data folder (:func:`plantbench.paths.data_dir`, ``PLANTBENCH_DATA``), any other
+    relative path to the suite file's folder. A scan case may name reference cylinder models of the same cloud
+    (``references``: tool -> table, in the scan file's frame), which the report holds the methods' traits to."""
 
     species: str | None = Field(default=None, description="species name (scenes/species/NAME.toml); beside "
                                                           "``path``: the species hint (scenes/hints/NAME.toml)")
@@ -27,22 +35,51 @@ class CaseSet(Strict):
     scale: float = Field(default=1.0, gt=0, le=1.0, description="growth budget factor: < 1 grows smaller plants")
     path: str | None = Field(default=None, description="a case folder (relative to the suite file's folder); "
                                                        "stored resolved, absolute")
+    scan: str | None = Field(default=None, description="a scan file (.xyz[.gz] .txt .csv .ply .las .laz .pcd), "
+                                                       "imported when the suite runs; stored resolved, absolute")
+    units: Literal["m", "cm", "mm"] = Field(default="m", description="units of the scan file's coordinates")
+    up: Literal["z", "-z", "y", "-y", "x", "-x"] = Field(default="z", description="the scan file's up axis")
+    references: dict[str, str] = Field(
+        default_factory=dict, description="reference QSM cylinder tables of the scan's cloud: tool (treeqsm, "
+                                          "simpleforest, archi) -> file, in the scan file's frame")
 
-    @field_validator("path")
+    @field_validator("path", "scan")
     @classmethod
     def _resolve(cls, value: str | None, info: ValidationInfo) -> str | None:
-        if value is None:
-            return None
-        folder = Path(value).expanduser()
-        if not folder.is_absolute():
-            folder = Path((info.context or {}).get("base", ".")) / folder
-        return str(folder.resolve())
+        from plantbench.paths import resolve_data_path
+
+        return None if value is None else str(resolve_data_path(value, (info.context or {}).get("base", ".")))
+
+    @field_validator("references")
+    @classmethod
+    def _resolve_references(cls, value: dict[str, str], info: ValidationInfo) -> dict[str, str]:
+        from plantbench.paths import resolve_data_path
+
+        for tool in value:
+            if tool not in REFERENCE_TOOLS:
+                raise ValueError(f"unknown reference tool {tool!r} (one of {', '.join(REFERENCE_TOOLS)})")
+        out = {t: str(resolve_data_path(v, (info.context or {}).get("base", "."))) for t, v in value.items()}
+        for tool, file in out.items():
+            if not Path(file).is_file():
+                raise ValueError(f"reference {tool} file {file} not found")
+        return out
 
     @model_validator(mode="after")
     def _one_source(self):
+        if self.scan is not None:
+            if self.path is not None or self.seeds is not None or self.scale != 1.0:
+                raise ValueError(f"a scan case ({self.scan}) takes no path, seeds or scale")
+            if not Path(self.scan).is_file():
+                raise ValueError(f"scan file {self.scan} not found (a data: path is under the data folder, "
+                                 "PLANTBENCH_DATA)")
+            self._check_hint(self.scan)
+            return self
+        if self.references or self.units != "m" or self.up != "z":
+            raise ValueError("units, up and references belong to a scan case (scan = FILE)")
         if self.path is None:
             if self.species is None or self.seeds is None:
-                raise ValueError("a case gives species and seeds (generated plants) or path (a case folder)")
+                raise ValueError("a case gives species and seeds (generated plants), path (a case folder) or scan "
+                                 "(a scan file)")
             return self
         if self.seeds is not None:
             raise ValueError(f"give species and seeds (generated plants) or path (a case folder, with species as "
@@ -54,25 +91,30 @@ class CaseSet(Strict):
             raise ValueError(f"case folder {self.path} not found")
         if not ((folder / "scan" / "scan.ply").is_file() or (folder / "views" / "cameras.json").is_file()):
             raise ValueError(f"case folder {self.path} holds neither scan/scan.ply nor views/cameras.json")
+        self._check_hint(self.path)
+        return self
+
+    def _check_hint(self, where: str) -> None:
         if self.species is not None:
             from plantbench.hints import load_hint
 
             try:
                 load_hint(self.species)
             except InputError as exc:
-                raise ValueError(f"species hint of case folder {self.path}: {exc}") from None
-        return self
+                raise ValueError(f"species hint of case {where}: {exc}") from None
 
     @model_serializer(mode="wrap")
     def _without_absent(self, handler):
         """The fields given, as before case folders existed: a generated case dumps as {species, seeds, scale}, so
         that config hashes and packed datasets' suite configs stay what they were."""
-        return {k: v for k, v in handler(self).items() if not (k in ("species", "seeds", "path") and v is None)}
+        defaults = {"species": None, "seeds": None, "path": None, "scan": None, "units": "m", "up": "z",
+                    "references": {}}
+        return {k: v for k, v in handler(self).items() if not (k in defaults and v == defaults[k])}
 
     @property
     def count(self) -> int:
-        """Number of cases: one per seed, or the one folder."""
-        return 1 if self.path is not None else len(self.seeds or ())
+        """Number of cases: one per seed, or the one folder or scan file."""
+        return 1 if self.path is not None or self.scan is not None else len(self.seeds or ())
 
 
 class CaptureSettings(Strict):

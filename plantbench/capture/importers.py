@@ -58,7 +58,7 @@ MIN_POINTS = 10
 _UMASK = os.umask(0)
 os.umask(_UMASK)
 
-SCAN_SUFFIXES = (".xyz", ".txt", ".csv", ".ply", ".las", ".laz", ".pcd")
+SCAN_SUFFIXES = (".xyz", ".txt", ".csv", ".xyz.gz", ".txt.gz", ".csv.gz", ".ply", ".las", ".laz", ".pcd")
 
 _R = np.array
 UP_AXES: dict[str, np.ndarray] = {
@@ -212,8 +212,11 @@ _SPLIT = re.compile(r"[,;\s]+")
 
 def _first_rows(path: Path) -> tuple[int, list[str], str | None]:
     """Lines to skip (comments and at most one header line), the first data row's tokens and its delimiter."""
+    import gzip
+
     header_seen = text_seen = False
-    with open(path, encoding="utf-8-sig", errors="replace") as fh:
+    opener = gzip.open if path.suffix.lower() == ".gz" else open
+    with opener(path, "rt", encoding="utf-8-sig", errors="replace") as fh:
         for lineno, line in enumerate(fh):
             s = line.strip()
             text_seen = text_seen or bool(s)
@@ -301,7 +304,9 @@ def read_scan_file(path: str | os.PathLike) -> np.ndarray:
     if path.stat().st_size == 0:
         raise InputError("empty file", path=path)
     suffix = path.suffix.lower()
-    if suffix in (".xyz", ".txt", ".csv"):
+    if suffix == ".gz" and Path(path.stem).suffix.lower() in (".xyz", ".txt", ".csv"):
+        pts = _read_text(path)  # (gzip-compressed text: numpy and gzip.open read it as the plain file)
+    elif suffix in (".xyz", ".txt", ".csv"):
         pts = _read_text(path)
     elif suffix == ".ply":
         pts = _read_ply(path)
@@ -347,6 +352,12 @@ def _version() -> str:
 # ------------------------------------------------------------------------------------------------- scans
 
 
+def _format(path: Path) -> str:
+    """'xyz', 'las', ... ('xyz.gz' for a compressed text file)."""
+    suffixes = [s.lower().lstrip(".") for s in path.suffixes]
+    return ".".join(suffixes[-2:]) if suffixes[-1:] == ["gz"] and len(suffixes) > 1 else (suffixes[-1] if suffixes else "")
+
+
 def import_scan(path: str | os.PathLike, case_dir: str | os.PathLike, *, units: str = "m", up: str = "z",
                 max_height: float = 100.0) -> ImportResult:
     """Import a scan file as the case ``case_dir``: ``scan/scan.ply`` (x y z in the case frame, station 0),
@@ -376,7 +387,7 @@ def import_scan(path: str | os.PathLike, case_dir: str | os.PathLike, *, units: 
     frame = CaseFrame(units=units.strip().lower(), units_factor=factor, up=up.strip().lower().lstrip("+"),
                       rotation=R.tolist(), offset=offset.tolist())
     record = CaseJson(
-        source=CaseSource(kind="scan", file=path.name, format=path.suffix.lower().lstrip("."), sha256=_sha256(path),
+        source=CaseSource(kind="scan", file=path.name, format=_format(path), sha256=_sha256(path),
                           points=len(raw)),
         frame=frame, height=height,
         origin="x, y: centroid of the lowest 2 % of the points (by z after the up rotation); z: the 0.5th "

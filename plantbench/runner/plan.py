@@ -229,8 +229,12 @@ def make_plan(suite: Suite, methods: list[str] | None = None, *, dataset: tuple[
     seen: set[str] = set()
     for sweep_value, s in variants:
         for case_set in s.cases:
-            cases = [_folder_case(plan, s, case_set, sweep_value, version_code)] if case_set.path is not None \
-                else _generated_cases(plan, s, case_set, sweep_value, version_code, dataset)
+            if case_set.path is not None:
+                cases = [_folder_case(plan, s, case_set, sweep_value, version_code)]
+            elif case_set.scan is not None:
+                cases = [_scan_case(plan, s, case_set, sweep_value)]
+            else:
+                cases = _generated_cases(plan, s, case_set, sweep_value, version_code, dataset)
             for case in cases:
                 if case.id in seen:
                     raise InputError(f"suite {s.name}: two cases named {case.id!r} (case folders are named by their "
@@ -337,6 +341,26 @@ def _folder_case(plan: Plan, s: Suite, case_set, sweep_value, version_code: dict
                 files[path.relative_to(folder).as_posix()] = file_sha256(path)
     key = plan.add(Job("capture", content_hash(["folder", files, version_code["runner"]]),
                        {"folder": str(folder), "parts": list(CASE_PARTS)}, timeout_s=s.timeout_s))
+    hint = _hint_hash(case_set.species) if case_set.species else None
+    return _Case(case_id, case_set.species or "unknown", REAL_FAMILY, 0, key, case_set.species, hint)
+
+
+def scan_case_id(scan: str | os.PathLike) -> str:
+    """The case id of a scan file: its name without its suffixes (``tree1`` for ``tree1.xyz.gz``)."""
+    return Path(scan).name.split(".")[0]
+
+
+def _scan_case(plan: Plan, s: Suite, case_set, sweep_value) -> _Case:
+    """A suite's scan file (``scan``): a capture job that imports it (``plantbench import scan``, with the case's
+    units and up axis), keyed by the file's sha256, the options and the importer's code. Case id: the file's name
+    without its suffixes; seed 0; species: the hint's, or 'unknown' without one."""
+    from plantbench.dataset import file_sha256
+
+    case_id = scan_case_id(case_set.scan) + (f"@{sweep_value}" if sweep_value is not None else "")
+    key = plan.add(Job("capture", content_hash(
+        ["scan", file_sha256(Path(case_set.scan)), case_set.units, case_set.up,
+         code_hash("plantbench/capture/importers.py")]),
+        {"scan": case_set.scan, "units": case_set.units, "up": case_set.up}, timeout_s=s.timeout_s))
     hint = _hint_hash(case_set.species) if case_set.species else None
     return _Case(case_id, case_set.species or "unknown", REAL_FAMILY, 0, key, case_set.species, hint)
 

@@ -33,7 +33,17 @@ class InvalidOutput(Exception):
     """A method returned but its output folder breaks the contract."""
 
 
-def _validate_reconstruction(folder: Path) -> None:
+MIN_SKELETON_NODES = 10
+"""A skeleton with fewer nodes is degenerate (no plant is drawn with fewer)."""
+MIN_HEIGHT_SHARE = 0.5
+"""A skeleton spanning less than this share of its input cloud's height is degenerate: the method lost the tree."""
+
+
+def _validate_reconstruction(folder: Path, cloud: Path | None = None) -> None:
+    """The output contract (readable files, no empty skeleton, cloud or mesh), and, when ``cloud`` (the method's
+    input points.ply) is given, a skeleton that is not degenerate: at least :data:`MIN_SKELETON_NODES` nodes and a
+    vertical extent of at least :data:`MIN_HEIGHT_SHARE` of the cloud's height. A degenerate skeleton is an invalid
+    output, a failed cell with its reason, not a score."""
     from plantbench.io.plantio import read_reconstruction
 
     try:
@@ -46,6 +56,17 @@ def _validate_reconstruction(folder: Path) -> None:
         raise InvalidOutput("points.ply has no points")
     if rec.mesh is not None and len(rec.mesh.faces) == 0:
         raise InvalidOutput("mesh.ply has no faces")
+    if rec.skeleton is not None and cloud is not None and cloud.is_file():
+        from plantbench.geometry.clouds import cloud_height
+        from plantbench.io.ply import read_points
+
+        sk = rec.skeleton
+        height = cloud_height(read_points(cloud)[0])
+        extent = float(sk.positions[:, 2].max() - sk.positions[:, 2].min())
+        if len(sk) < MIN_SKELETON_NODES or extent < MIN_HEIGHT_SHARE * height:
+            raise InvalidOutput(f"degenerate skeleton: {len(sk)} nodes spanning {extent:.2f} m of the input cloud's "
+                                f"{height:.2f} m (a skeleton needs >= {MIN_SKELETON_NODES} nodes and "
+                                f">= {MIN_HEIGHT_SHARE:g} of the height)")
 
 
 def run_job(cache: Path, kind: str, key: str, folder: Path, params: dict) -> dict:
@@ -60,6 +81,13 @@ def run_job(cache: Path, kind: str, key: str, folder: Path, params: dict) -> dic
             generate_case(params["species"], params["seed"], folder, scale=params["scale"])
         elif kind == "capture" and ("dataset" in params or "folder" in params):
             _copy_case(folder, params)
+        elif kind == "capture" and "scan" in params:
+            from plantbench.capture.importers import import_scan
+
+            imported = import_scan(params["scan"], folder / "imported", units=params["units"], up=params["up"]).case
+            for part in ("scan", "case.json"):  # (the job folder already holds its log)
+                (imported / part).rename(folder / part)
+            imported.rmdir()
         elif kind == "capture":
             from plantbench.capture import capture_case
 
@@ -69,7 +97,8 @@ def run_job(cache: Path, kind: str, key: str, folder: Path, params: dict) -> dic
             _points(cache, folder, params)
         elif kind == "method":
             _method(cache, folder, params)
-            _validate_reconstruction(folder)
+            _validate_reconstruction(folder, job_folder(cache, "points", params["points"]) / "points.ply"
+                                     if params.get("points") else None)
         elif kind == "metrics":
             from plantbench.metrics.evaluate import evaluate
 
