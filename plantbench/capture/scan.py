@@ -25,6 +25,7 @@ from plantbench.capture.raycast import RayCaster
 from plantbench.capture.scene import plant_bounds
 from plantbench.capture.settings import CaptureOptions
 from plantbench.errors import InputError
+from plantbench.geometry.clouds import median_spacing
 from plantbench.plant import Plant
 
 __all__ = ["MAX_RAYS", "Scan", "station_positions", "station_distance", "angular_step", "beam_grid",
@@ -141,16 +142,6 @@ def misregistration(plant: Plant, rms: float, rng: np.random.Generator) -> tuple
     k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
     rot = np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
     return rot, centre - rot @ centre + t
-
-
-def median_spacing(points: np.ndarray) -> float:
-    """Median distance from each point to its nearest other point, metres (nan with fewer than 2 points)."""
-    from scipy.spatial import cKDTree
-
-    if len(points) < 2:
-        return float("nan")
-    d, _ = cKDTree(points).query(points, k=2)
-    return float(np.median(d[:, 1]))
 
 
 def scan_plant(plant: Plant, options: CaptureOptions, rng: np.random.Generator,

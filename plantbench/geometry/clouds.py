@@ -7,7 +7,7 @@ import numpy as np
 from plantbench.errors import InputError
 from plantbench.plant import check_shape
 
-__all__ = ["cloud_height", "HEIGHT_QUANTILE"]
+__all__ = ["cloud_height", "median_spacing", "HEIGHT_QUANTILE"]
 
 HEIGHT_QUANTILE = 0.999
 """A cloud's height is this quantile of its points' z (above z = 0): a few stray points above the crown (mvs
@@ -20,3 +20,14 @@ def cloud_height(points: np.ndarray) -> float:
     if not len(pts):
         raise InputError("the cloud is empty: it has no height")
     return float(np.quantile(pts[:, 2], HEIGHT_QUANTILE))
+
+
+def median_spacing(points: np.ndarray) -> float:
+    """Median distance from each point (n, 3) to its nearest other point, metres (nan with fewer than 2 points)."""
+    from scipy.spatial import cKDTree
+
+    pts = check_shape("points", points, (-1, 3), "f")
+    if len(pts) < 2:
+        return float("nan")
+    d, _ = cKDTree(pts).query(pts, k=2)
+    return float(np.median(d[:, 1]))

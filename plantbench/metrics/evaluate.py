@@ -13,7 +13,8 @@ None, never NaN; :func:`evaluate_detailed` also returns why:
   area-uniform sample of the plant surface);
 * no ``views/cameras.json`` or instance maps: reprojection;
 * no ``scan/scan.ply`` and no observed cloud given: the GT-free skeleton support (``support.*``, the share of the
-  skeleton's length near an observed point, tolerance a fraction of the observed cloud's height above z = 0);
+  skeleton's length near an observed point, tolerance a fraction of the observed cloud's height above z = 0, or,
+  for ``support.skeleton@spacing``, max(1 % of that height, twice the observed points' median spacing));
 * no ``leaves.json`` in the output: leaf metrics; no ``points.ply``: points metrics; no ``skeleton.ply``: Stava and
   skeleton metrics;
 * a ground truth without leaves: the foliage part of the point and surface metrics; a trunk shorter than breast
@@ -123,6 +124,7 @@ def _skeleton_metrics(values: dict, reasons: dict, plant, skeleton, samples, opt
         _set(values, reasons, "skeleton", None, "no skeleton.ply in the output")
         return
     a = skeleton_attributes(skeleton, breast_height=options.breast_height)
+    _trait_metrics(values, reasons, skeleton, options)
     area = crown_area(skeleton)
     _set(values, reasons, "skeleton", {"crown_area_m2": area}, "fewer than 3 skeleton nodes, or all in one vertical plane")
     traits = {"branch_count": a["branch_count"], "total_length_m": a["total_length_m"],
@@ -156,12 +158,27 @@ def _skeleton_metrics(values: dict, reasons: dict, plant, skeleton, samples, opt
     }, "trunk below breast height, or no branch")
 
 
+def _trait_metrics(values: dict, reasons: dict, skeleton, options: EvaluateOptions) -> None:
+    """The forester's traits (:mod:`plantbench.metrics.traits`), from the skeleton (``skeleton.*``) and from its QSM
+    cylinder export (``qsm.*``); no ground truth needed."""
+    from plantbench.io.qsm import skeleton_to_cylinders
+    from plantbench.metrics.traits import cylinder_traits, skeleton_traits
+
+    t = skeleton_traits(skeleton, breast_height=options.breast_height)
+    _set(values, reasons, "skeleton", {k: v for k, v in t.items() if f"skeleton.{k}" in METRICS
+                                       and k not in ("dbh_cm", "height_m", "total_length_m", "branch_count")},
+         "no edge")
+    has_edge = len(skeleton) > 0 and bool(np.any(skeleton.parents >= 0))
+    _set(values, reasons, "qsm", cylinder_traits(skeleton_to_cylinders(skeleton), breast_height=options.breast_height)
+         if has_edge else None, "no edge: no cylinder" if not has_edge else "no stem reaches breast height")
+
+
 def _support_metrics(values: dict, reasons: dict, samples, observed: np.ndarray | None,
                      options: EvaluateOptions) -> None:
     """``support.*``: the GT-free share of the skeleton's length near an observed point (the scan, or the input
     cloud), tolerances fractions of the observed height above z = 0. ``samples``: the skeleton's
     (:func:`~plantbench.metrics.skeleton.skeleton_samples`), None without a skeleton."""
-    from plantbench.geometry.clouds import cloud_height
+    from plantbench.geometry.clouds import cloud_height, median_spacing
     from plantbench.metrics.points import tau_label
     from plantbench.metrics.skeleton import HEIGHT_FRACTIONS, skeleton_support
 
@@ -170,9 +187,14 @@ def _support_metrics(values: dict, reasons: dict, samples, observed: np.ndarray 
         _set(values, reasons, "support", None, "no skeleton.ply in the output" if samples is None
              else "no scan/scan.ply or observed cloud above the ground")
         return
-    shares = skeleton_support(samples, observed, tolerances=tuple(f * obs_height for f in HEIGHT_FRACTIONS))
+    spacing = median_spacing(observed)
+    sparse = max(0.01 * obs_height, 2.0 * spacing) if np.isfinite(spacing) else 0.01 * obs_height
+    shares = skeleton_support(samples, observed, tolerances=(*(f * obs_height for f in HEIGHT_FRACTIONS), sparse))
     _set(values, reasons, "support", None if shares is None else
-         {f"skeleton@{tau_label(f)}": v for f, v in zip(HEIGHT_FRACTIONS, shares)}, "the skeleton has no length")
+         {**{f"skeleton@{tau_label(f)}": v for f, v in zip(HEIGHT_FRACTIONS, shares)}, "skeleton@spacing": shares[-1]},
+         "the skeleton has no length")
+    _set(values, reasons, "support", {"spacing_cm": 100.0 * spacing if np.isfinite(spacing) else None},
+         "fewer than 2 observed points")
 
 
 def _gt_surface_sample(plant, options: EvaluateOptions) -> tuple[np.ndarray, np.ndarray]:

@@ -134,6 +134,10 @@ _add("skeleton.branch_count_log2_error", "", False, "|log2(branch count / GT bra
 for _f in HEIGHT_FRACTIONS:
     _add(f"support.skeleton@{tau_label(_f)}", "", True,
          f"GT-free: share of skeleton length within {tau_label(_f)} of the observed height of an observed point")
+_add("support.skeleton@spacing", "", True,
+     "GT-free: share of skeleton length within max(1% of the observed height, 2 x the median spacing of the observed "
+     "points) of an observed point: meaningful on scans sparser than 1% of the height")
+_add("support.spacing_cm", "cm", None, "median distance from an observed point to its nearest other point")
 _add("skeleton.branch_count", "", None, "reconstructed branch count (unbranched chains; Guo et al. 2018, |B|)")
 _add("skeleton.branch_count_rel_error", "", False, "|branch count - GT| / GT")
 _add("skeleton.total_length_m", "m", None, "reconstructed total branch length")
@@ -146,6 +150,25 @@ _add("skeleton.dbh_error_cm", "cm", False, "|DBH - GT DBH|")
 _add("skeleton.crown_area_m2", "m2", None,
      "reconstructed crown projection area: 2D convex hull of the skeleton nodes' (x, y); needs no ground truth")
 _add("skeleton.crown_area_rel_error", "", False, "|crown projection area - GT| / GT")
+_TRAITS = {
+    "dbh_cm": ("cm", "diameter at breast height, 1.3 m above the lowest point, of the thickest stem crossing it"),
+    "height_m": ("m", "height, max z - min z"),
+    "trunk_volume_l": ("L", "volume of the stem axes (order 0)"),
+    "total_volume_l": ("L", "volume of every axis"),
+    "total_length_m": ("m", "length of every axis"),
+    "length_order0_m": ("m", "length of the stem axes (order 0)"),
+    "length_order1_m": ("m", "length of the first-order laterals"),
+    "length_order2_m": ("m", "length of the second-order laterals"),
+    "length_order3plus_m": ("m", "length of the laterals of order 3 and more"),
+    "branch_count": ("", "lateral axes (order >= 1; an axis follows the thickest child, as TreeQSM's branches)"),
+}
+for _k, (_unit, _what) in _TRAITS.items():
+    if _k not in ("dbh_cm", "height_m", "total_length_m", "branch_count"):  # (skeleton.* has these already)
+        _add(f"skeleton.{_k}", _unit, None, f"GT-free trait of the skeleton: {_what} (truncated cones between the "
+                                            "node radii; plantbench.metrics.traits)")
+for _k, (_unit, _what) in _TRAITS.items():
+    _add(f"qsm.{_k}", _unit, None, f"GT-free trait of the skeleton's QSM cylinder export (plantbench qsm export): "
+                                   f"{_what}")
 
 HEADLINE = ("skeleton.vf1@1%", "skeleton.branch_f1@1%", "surface.wood.fscore@0.5%", "leaves.strict_f1",
             "support.skeleton@1%")

@@ -427,6 +427,11 @@ def write_report(run_dir: str | os.PathLike, formats: tuple[str, ...] = FORMATS,
     if note:
         origin = f"{origin}\n\n{note}" if origin else note
     figures = _figures(table, out / "figures", sweep)
+    if "family" in table.columns and (table["family"] == "real").any():
+        from plantbench.report.real import real_figures, real_tables
+
+        tables += real_tables(run_dir, table)
+        figures += real_figures(run_dir, table, out / "figures")
     for extra in (distance_figure(run_dir, out / "figures" / "distances.png"),
                   leaf_figure(run_dir, out / "figures" / "leaves.png"),
                   timeline_figure(run_dir, out / "figures" / "timeline.png")):
