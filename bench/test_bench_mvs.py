@@ -64,7 +64,7 @@ def _sgbm(views):
     ref, srcs, cam, src_cams, _, _ = views
     other = src_cams[0]
     r_rel = other.R @ cam.R.T
-    t_rel = (other.t - r_rel @ cam.t).reshape(3, 1)  # stereoRectify wants (3, 1) (notes/stack.md section 5)
+    t_rel = (other.t - r_rel @ cam.t).reshape(3, 1)  # stereoRectify wants (3, 1) (docs/design.md, Platform notes)
     size = (cam.width, cam.height)
     r1, r2, p1, p2, _, _, _ = cv2.stereoRectify(cam.K, np.zeros(5), other.K, np.zeros(5), size, r_rel, t_rel,
                                                 flags=0, alpha=-1)

@@ -1,4 +1,4 @@
-"""Canonical cameras: OpenCV pinhole (DESIGN.md section 2).
+"""Canonical cameras: OpenCV pinhole (docs/design.md, Conventions).
 
 A world point X maps to camera coordinates ``Xc = R X + t`` and to pixel ``(u, v) = (fx Xc/Zc + cx, fy Yc/Zc + cy)``
 with pixel (u, v)'s centre at integer (u, v); camera +Z looks forward, +X right, +Y down. Every other camera format

@@ -6,7 +6,7 @@
                           generator and the capture, Dr.Jit target, Mitsuba variant, licence, and per case its id,
                           species, family, seed and files; per file its sha256 and size
     DIR/DATASHEET.md      what is in it and how it was made
-    DIR/cases/<case>/     plant/, views/, scan/ as in a case folder (DESIGN.md section 3)
+    DIR/cases/<case>/     plant/, views/, scan/ as in a case folder (docs/design.md, On-disk contracts)
 
 ``plantbench run --suite NAME --dataset DIR`` verifies every file against the manifest first (a missing, altered or
 unlisted file is an :class:`InputError` naming it) and runs the methods on the frozen captures instead of generating
@@ -125,7 +125,7 @@ def _datasheet(manifest: Manifest) -> str:
 **What it is.** {len(manifest.cases)} synthetic plants ({", ".join(species)}) with exact ground truth and their
 captures, as the plantbench suite `{manifest.suite}` defines them: {cfg.get("description", "")}.
 
-**Per case** (`cases/<species>-<seed>/`, layout of DESIGN.md section 3): `plant/` the ground truth (skeleton with
+**Per case** (`cases/<species>-<seed>/`, layout of docs/design.md): `plant/` the ground truth (skeleton with
 radii, branch and leaf meshes, per-leaf parameters); `views/` {cap.get("views")} rendered views at
 {cap.get("width")}x{cap.get("height")} px ({cap.get("spp")} spp, Mitsuba 3 `{manifest.mitsuba_variant}`) with exact
 z-depth and instance maps (ground truth), cameras as OpenCV, COLMAP and transforms.json; `scan/` a simulated

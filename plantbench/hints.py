@@ -1,4 +1,4 @@
-"""The species hint: the one piece of prior knowledge a method may receive (DESIGN.md section 3).
+"""The species hint: the one piece of prior knowledge a method may receive (docs/design.md, Method API and isolation).
 
 A hint is what a user of Guo et al. 2018 knows about a species before looking at the data: its Table 2 columns
 (internode length l, roll angle phi, branching angle psi, diameter coefficient gamma; the growth units rho are

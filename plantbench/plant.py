@@ -3,7 +3,7 @@
 This is the one representation shared by the generator (which produces it), the capture stage (which renders
 it), the methods (which write the same shapes to their output folders) and the metrics (which compare two of
 them). Arrays only, no behaviour beyond validation and a few derived views; reading and writing the on-disk
-contract of DESIGN.md section 3 lives in :mod:`plantbench.io.plantio`.
+contract (docs/design.md, On-disk contracts) lives in :mod:`plantbench.io.plantio`.
 
 Conventions: metres, right-handed world, Z up, roots on the ground plane z = 0.
 """

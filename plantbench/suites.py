@@ -1,4 +1,4 @@
-"""Suites: ``scenes/suites/*.toml`` describe cases x methods x capture settings (DESIGN.md section 8)."""
+"""Suites: ``scenes/suites/*.toml`` describe cases x methods x capture settings (docs/design.md, Runner and cache)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""``capture_case``: render the views and simulate the scan of one case (DESIGN.md sections 3 and 5).
+"""``capture_case``: render the views and simulate the scan of one case (docs/design.md, On-disk contracts, Capture).
 
 Writes ``CASE/views/`` (images/NNNN.png, depth/NNNN.npy, instance/NNNN.png, foliage/NNNN.png, optional
 normal/NNNN.npy, cameras.json, colmap/, transforms.json, capture.json) and, when scanning, ``CASE/scan/``

@@ -1,4 +1,4 @@
-"""Camera formats derived from the canonical OpenCV cameras (DESIGN.md section 2).
+"""Camera formats derived from the canonical OpenCV cameras (docs/design.md, Conventions).
 
 **COLMAP** (text model: cameras.txt, images.txt, points3D.txt). COLMAP's camera frame is OpenCV's (+X right, +Y
 down, +Z forward) and images.txt stores the world-to-camera pose (quaternion QW QX QY QZ of R, Hamilton convention,

@@ -1,7 +1,7 @@
-"""Real captures in: a laser scan file or a photo set with a COLMAP model becomes a case (DESIGN.md section 3).
+"""Real captures in: a laser scan file or a photo set with a COLMAP model becomes a case (docs/design.md).
 
 A real capture arrives in its own frame: georeferenced coordinates (UTM eastings of 500 000 m), centimetres or
-millimetres, Y up. The importers bring it to the case frame of DESIGN.md section 2 (metres, right-handed, Z up, the
+millimetres, Y up. The importers bring it to the case frame of docs/design.md (metres, right-handed, Z up, the
 root at the origin on the ground plane z = 0) and record every step in ``CASE/case.json``::
 
     local = rotation @ (units_factor * source) - offset        (metres)
@@ -489,7 +489,7 @@ def _colmap_intrinsics(cam, image_name: str, model_dir: Path) -> np.ndarray:
 
 def read_colmap_model(model_dir: str | os.PathLike) -> ColmapModel:
     """Read a COLMAP model (text or binary) with pycolmap; registered images only, as OpenCV cameras."""
-    import PIL.Image  # noqa: F401 - PIL before pycolmap: zlib clash (notes/algorithms.md 6.1)
+    import PIL.Image  # noqa: F401 - PIL before pycolmap: zlib clash (docs/design.md, Platform notes)
     import pycolmap
 
     from plantbench.cameras import Camera

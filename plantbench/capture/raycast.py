@@ -4,7 +4,7 @@ The exact ground-truth maps and the laser scan both need "which triangle does th
 merged mesh with a per-face label array answers both without any shape bookkeeping: the primitive index of the
 hit indexes the labels. Mitsuba's ``llvm_ad_rgb`` variant casts all rays in one vectorised call; in the
 ``scalar_rgb`` fallback Mitsuba would need a Python loop per ray, so open3d's ``RaycastingScene`` (Embree) is used
-instead. Both cast the same float32 geometry and agree to ~1e-5 m (../shared/notes/stack.md section 3).
+instead. Both cast the same float32 geometry and agree to ~1e-5 m (docs/design.md, Platform notes).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Simulated terrestrial laser scan (DESIGN.md section 5).
+"""Simulated terrestrial laser scan (docs/design.md, Capture).
 
 Each station is a scanner on a circle around the plant's axis at ``scanner_height``. It sweeps a regular grid of
 beams, ``angular_step_deg`` apart in azimuth and elevation, over the angular window that the plant occupies seen

@@ -1,6 +1,6 @@
 """The Mitsuba scene of a capture: a plain dict built by a pure function of the plant, the cameras and the options.
 
-Contents (DESIGN.md section 5):
+Contents (docs/design.md, Capture):
 
 - branches: one mesh with a bark material, brown with per-vertex colour noise (3D sinusoid noise evaluated at the
   vertices, so it needs no UV parameterisation of the tubes);

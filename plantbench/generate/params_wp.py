@@ -7,8 +7,8 @@ Scale, Ratio, RatioPower, Flare, 0BaseSplits) are the ``[tree]`` group. Leaves a
 stems (W&P's Leaves, LeafDistrib) and use the same Bezier leaves as every other family (``[leaves]``, the
 :class:`~plantbench.generate.params.Leaves` model with the W&P placement fields added).
 
-Dropped from the paper (notes/algorithms.md section 3.5): Lobes/LobeDepth, pruning, LeafQuality, helical curvature
-(negative CurveV). Added (Xfrog-like, notes section 4): an explicit child arrangement per level (spiral, alternate,
+Dropped from the paper (docs/design.md, Generator): Lobes/LobeDepth, pruning, LeafQuality, helical curvature
+(negative CurveV). Added (Xfrog-like): an explicit child arrangement per level (spiral, alternate,
 opposite, whorl) and a leaf size profile along a twig.
 
 Every numeric field has bounds, so an out-of-range value is reported as ``file: field: Input should be ...``.

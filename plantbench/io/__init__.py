@@ -1,1 +1,1 @@
-"""Reading and writing the on-disk contracts (DESIGN.md section 3)."""
+"""Reading and writing the on-disk contracts (docs/design.md, On-disk contracts)."""

@@ -1,4 +1,4 @@
-"""The ``plant/`` folder of a case (DESIGN.md section 3): write atomically, read with validation.
+"""The ``plant/`` folder of a case (docs/design.md, On-disk contracts): write atomically, read with validation.
 
 A method's output folder uses the same skeleton/mesh/leaves files (``skeleton.ply``, ``mesh.ply``,
 ``leaves.json``, ``points.ply``); :func:`read_reconstruction` reads it into a :class:`Reconstruction`.

@@ -1,4 +1,4 @@
-"""Method API: what a reconstruction method is, and how one is run (DESIGN.md section 6).
+"""Method API: what a reconstruction method is, and how one is run (docs/design.md, Method API and isolation).
 
 The registry (:data:`plantbench.registry.methods`) loads every method, shipped or third-party, from the entry
 point group ``plantbench.methods``.

@@ -1,4 +1,4 @@
-"""A method's input folder: only what a real capture gives (DESIGN.md section 3), in a fresh folder of its own.
+"""A method's input folder: only what a real capture gives (docs/design.md), in a fresh folder of its own.
 
 The runner and ``plantbench reconstruct`` copy into a new temporary folder, outside the job cache, what the method's
 ``inputs`` allow:

@@ -1,4 +1,4 @@
-"""The calibration ladder: controlled reconstructions built from a case's ground truth (DESIGN.md section 7).
+"""The calibration ladder: controlled reconstructions built from a case's ground truth (docs/design.md).
 
 Each rung is an oracle method (``ladder:NAME``, resolved by :func:`plantbench.methods.api.method_from_spec`) whose
 output is the ground truth degraded in one known way, so that ``plantbench calibrate`` can run the rungs through

@@ -1,6 +1,6 @@
 """The no-data prior: a tree of the hinted species that looks at nothing but the plant's height.
 
-It is the floor beside every method (DESIGN.md section 7): a method earns its row by beating it. It grows the hinted
+It is the floor beside every method (docs/design.md): a method earns its row by beating it. It grows the hinted
 species from the species library (``scenes/species``, the generative model itself: an oracle of the model, marked
 as such in every table, though it reads no ground truth of the case) with the method seed, scales it to the
 height of the input cloud (its vertical extent above the ground plane z = 0,

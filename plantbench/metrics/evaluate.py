@@ -1,4 +1,4 @@
-"""``plantbench evaluate``: score a method's output folder against a case folder (DESIGN.md section 3).
+"""``plantbench evaluate``: score a method's output folder against a case folder (docs/design.md, On-disk contracts).
 
 :func:`evaluate` reads the files, calls the pure metric functions and returns one flat dict, metric name -> value,
 with every registered metric present (see :data:`plantbench.metrics.info.METRICS`). A metric that cannot apply is

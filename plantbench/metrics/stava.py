@@ -1,4 +1,4 @@
-"""Stava et al. 2014 tree similarity S_T (DESIGN.md section 7; notes/metrics.md section 1.3).
+"""Stava et al. 2014 tree similarity S_T (docs/design.md, Metrics).
 
 Two skeletons are compared through their *branch graphs*: a node is a maximal unbranched chain of skeleton nodes
 (:func:`plantbench.skeletons.branch_chains`), its parent the chain that ends at its first node. The distance has

@@ -1,4 +1,4 @@
-"""``plantbench calibrate``: which metrics tell a faithful reconstruction from a plausible one (DESIGN.md section 7).
+"""``plantbench calibrate``: which metrics tell a faithful reconstruction from a plausible one (docs/design.md).
 
 The suite's plants are captured as usual; the rungs of the ladder (:mod:`plantbench.methods.ladder`: the ground
 truth pruned, jittered, scaled, with moved leaves; the no-data prior with two seeds; another species) run as oracle

@@ -1,4 +1,4 @@
-"""Ground removal for scans (DESIGN.md section 2: Z up, ground plane at z = 0).
+"""Ground removal for scans (docs/design.md, Conventions: Z up, ground plane at z = 0).
 
 A simulated scan's ``points.ply`` holds raw coordinates, ground hits included; the ``mvs`` stage has already removed
 the ground. :func:`remove_ground` handles both: it fits a near-horizontal plane to the lowest slab of the cloud with

@@ -1,7 +1,7 @@
 """Branch radii from allometry, anchored on a trunk radius measured in the cloud.
 
 - :func:`pipe_model_radii`: Shinozaki's pipe model on supported length, r = r_root (w / w_root)^(1/2) (cross-section
-  area proportional to the branch length a node supports), the Livny-style choice (notes/algorithms.md 1.1 step 9).
+  area proportional to the branch length a node supports), the Livny-style choice.
 - :func:`wbe_murray_radii`: Xu et al. 2007 section 5.2: a tip-to-root pass for the supported lengths, then a
   root-to-tip pass with Eq. 4 (one child: r_c = r_p (l_c / l_p)^(3/2), the simplified WBE model) and Eq. 5 (several
   children: r_ci = r_p (l_ci / sum_j l_cj)^(1/2.49), Murray's exponent).

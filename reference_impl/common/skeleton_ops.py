@@ -2,7 +2,7 @@
 
 - :func:`remove_nodes`: drop nodes, reattaching children to the nearest kept ancestor.
 - :func:`prune_by_ratio`: keep a child subtree only if (w(child) + |edge|) / w(parent) >= ratio (AdTree's
-  ``keep_main_skeleton``, 0.019, notes/algorithms.md 1.1 step 8; Livny's subtree-ratio simplification).
+  ``keep_main_skeleton``, 0.019; Livny's subtree-ratio simplification).
 - :func:`spatial_merge`: merge vertices sharing a grid cell of size ``delta`` and rebuild the shortest-path tree
   (resampling between Livny passes).
 - :func:`merge_siblings`: merge sibling children closer than ``max_angle`` in direction with edge-length ratio in
@@ -76,7 +76,7 @@ def spatial_merge(positions: np.ndarray, parents: np.ndarray, mass: np.ndarray, 
     """Merge the vertices sharing a ``delta`` grid cell (whatever their place in the tree), then rebuild the tree.
 
     The merged vertices are joined wherever an old tree edge joined two of their members; a shortest-path tree from
-    the cells of the old roots over that graph is the new tree (notes/algorithms.md 1.1 step 7: merge vertices closer
+    the cells of the old roots over that graph is the new tree (Livny's resampling: merge vertices closer
     than delta, rebuild the shortest-path tree). Parallel paths that the re-embedding moved onto the same axis
     become one. mass : (n,) positive weights for averaging.
     Returns ``positions (m, 3)``, ``parents (m,)``, ``mass (m,)`` and ``index (n,)`` (old vertex -> merged vertex).

@@ -73,7 +73,7 @@ class GuoParams:
     tropism: tuple[float, float, float] = (0.0, 0.0, -1.0)
     """V_tropism: the paper's (0, -1, 0) in its Y-up frame, i.e. down in our Z-up frame [P]."""
     lateral_vigour: float = 1.0
-    """Bud fate by Borchert-Honda allocation (Palubicki et al. 2009, notes/algorithms.md 2.2; lambda = 0.5): the
+    """Bud fate by Borchert-Honda allocation (Palubicki et al. 2009; lambda = 0.5): the
     resource v = alpha x (number of lit buds) is shared among the lit buds in proportion to the marker weight Q
     each perceives, and a bud receiving v grows floor(v) metamers, so a lateral bud whose share is below this many
     metamers (1: the floor rule) stays dormant this cycle; apical buds keep growing while lit; 0 disables (every lit

@@ -1,4 +1,4 @@
-"""livny: the Livny et al. 2010-style baseline (DESIGN.md section 6), a registered ``points`` method.
+"""livny: the Livny et al. 2010-style baseline (docs/design.md, Shipped methods), a registered ``points`` method.
 
 The algorithm lives in :mod:`reference_impl.livny.bsg` (pure functions, parameters with their sources in
 :class:`~reference_impl.livny.bsg.LivnyParams`); this class reads the input cloud and writes the output contract.

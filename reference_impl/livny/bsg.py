@@ -1,20 +1,20 @@
-"""The Livny et al. 2010 pipeline (DESIGN.md section 6, notes/algorithms.md section 1) as pure functions.
+"""The Livny et al. 2010 pipeline (docs/design.md, Shipped methods) as pure functions.
 
-Steps and where each parameter comes from ([L] Livny 2010 as summarised in the notes, [G] the Groot
+Steps and where each parameter comes from ([L] Livny 2010 (docs/design.md, Shipped methods), [G] the Groot
 re-implementation, [A] AdTree, [S] our choice; every length is scaled by the plant's size):
 
-1. ground removal (reference_impl.common.ground) [S]; voxel downsampling at 0.75 % of the plant height [S, notes 1.1
-   step 0: 0.5-1 % of the height], coarsened only when more than 150k voxels remain (speed) [S];
+1. ground removal (reference_impl.common.ground) [S]; voxel downsampling at 0.75 % of the plant height [S, within
+   0.5-1 % of the height; docs/tuning/guo.md], coarsened only when more than 150k voxels remain (speed) [S];
 2. symmetrised 10-NN graph without edges longer than 3 x the median 1-NN spacing, components bridged by their
-   shortest edges [S, notes 1.2];
+   shortest edges [S];
 3. roots: the lowest vertex of each central cluster of the bottom 2 % of the height, per separate plant [A, L:
    several roots allowed; S: the central and per-plant rules, reference_impl.common.roots.find_roots];
 4. shortest-path tree by multi-source Dijkstra [L];
 5. five outer iterations [G] of: vertex weights = supported subtree length [L, G, A]; the orientation field
    minimising sum w_pc^2 |o_p - o_c|^2 + w_c^2 |o_c - e_c|^2 (Groot's energy) solved as one sparse linear least
-   squares and normalised [S, notes: the cheap equivalent of the sphere-constrained solve]; re-embedding of the
+   squares and normalised [S: the cheap equivalent of Groot's sphere-constrained solve]; re-embedding of the
    positions by sparse least squares, edges aligned with the field plus a data term [G]; resampling by merging the
-   vertices sharing a one-voxel cell and rebuilding the shortest-path tree [S, notes 1.1 step 7];
+   vertices sharing a one-voxel cell and rebuilding the shortest-path tree [S];
 6. simplification until stable: subtree-ratio pruning 0.02 [A: 0.019] plus twigs under 3 voxels [S], sibling merging
    below 25 deg with length ratio in [1/2, 2] [A], removal of degree-2 vertices within the local radius of their
    neighbours' line [A];
@@ -73,15 +73,15 @@ class LivnyParams:
     """Parameters of the Livny-style baseline (source in brackets, see the module docstring)."""
 
     voxel_fraction: float = 0.0075
-    """Voxel edge as a fraction of the plant's height (Livny et al. work on the points themselves) [S, notes 1.1
-    step 0: 0.5-1 % of the height; docs/tuning/guo.md]."""
+    """Voxel edge as a fraction of the plant's height (Livny et al. work on the points themselves) [S, within
+    0.5-1 % of the height; docs/tuning/guo.md]."""
     max_vertices: int = 150_000
     """When more voxels than this remain, the voxel grows (by the square root of the excess: scans sample surfaces)
     until they fit [S: keeps a 300k-point plant under the 60 s target of issue 7]."""
     k: int = 10
-    """Neighbours per vertex in the kNN graph [S, notes 1.2]."""
+    """Neighbours per vertex in the kNN graph [S]."""
     max_edge_factor: float = 3.0
-    """Drop kNN edges longer than this times the median 1-NN spacing, then bridge components [S, notes 1.2]."""
+    """Drop kNN edges longer than this times the median 1-NN spacing, then bridge components [S]."""
     root_slab_fraction: float = 0.02
     """Roots are searched in the lowest 2 % of the height [A]."""
     plant_gap_fraction: float = 0.05
@@ -94,7 +94,7 @@ class LivnyParams:
     anchor_radius_factor: float = 1.5
     """Anchor = centroid of the cloud within this many local (pipe-model) radii of a vertex [S]."""
     merge_factor: float = 1.0
-    """Resampling between passes merges vertices in cells of this many voxels [S, notes 1.2: delta = 1 voxel]."""
+    """Resampling between passes merges vertices in cells of this many voxels [S: delta = 1 voxel]."""
     prune_ratio: float = 0.02
     """Keep a child subtree if (w(child) + |edge|) / w(parent) >= this [A: 0.019; issue: ~0.02]."""
     min_twig_voxels: float = 3.0

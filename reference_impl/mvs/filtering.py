@@ -6,7 +6,7 @@ fusion, Zhang et al. 2009's m_v as a hard threshold): a pixel's depth survives w
 other views agree with it (forward-backward reprojection error below ``reproj_px`` and relative depth difference
 below ``rel_depth``), the photo-consistency part having been enforced by the matching-cost threshold. The same
 pass counts free-space violations (another view saw *through* the point) for visibility-consistent fusion.
-Deviation from the seed: no graph-cut optimisation (documented in the method's notes).
+Deviation from the paper: no graph-cut optimisation.
 
 Foliage (measured on a 20-view 512 px maple capture): visible leaf fragments are ~3 px (median), so even the exact
 depth on a fronto-parallel window gives a ZNCC of only ~0.15 on leaves (0.55 when every window pixel is warped

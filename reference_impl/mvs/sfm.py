@@ -97,7 +97,7 @@ def run_sfm(
     """
     import importlib
 
-    importlib.import_module("PIL.Image")  # PIL before pycolmap: zlib clash (notes/algorithms.md 6.1)
+    importlib.import_module("PIL.Image")  # PIL before pycolmap: zlib clash (docs/design.md, Platform notes)
     pycolmap = importlib.import_module("pycolmap")
 
     if intrinsics not in ("known", "unknown"):

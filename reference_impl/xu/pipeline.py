@@ -56,7 +56,7 @@ class XuParams:
     hop deep, like Brostow et al.'s level sets) [S]."""
     spur_bins: float = 2.0
     """Main-skeleton terminal chains shorter than this many bins that hang from a junction, and extra root trees
-    shorter than that in all, are bin noise; their points become leaf points [S: the notes' clean-up step]."""
+    shorter than that in all, are bin noise; their points become leaf points [S]."""
     root_slab_fraction: float = 0.02
     """Stem bases searched in the lowest 2 % of the height; one root per stem (the paper's user picks the root; a
     multi-stem shrub has one per stem) [S]."""

@@ -71,7 +71,7 @@ def test_cameras_json_projects_onto_instances(captured):
 
 
 def test_colmap_model_projects_onto_instances(captured):
-    import PIL.Image  # noqa: F401  (before pycolmap: zlib clash, ../shared/notes/algorithms.md 6.1)
+    import PIL.Image  # noqa: F401  (before pycolmap: zlib clash, docs/design.md, Platform notes)
     import pycolmap
 
     case, plant = captured

@@ -118,7 +118,7 @@ def test_scale_shrinks_the_plant():
     ("tend_flame", 0.85, 0.75),
 ])
 def test_shape_ratio_table(shape, r, expected):
-    """notes/algorithms.md section 3.2, evaluated by hand."""
+    """Weber and Penn's ShapeRatio table, evaluated by hand."""
     assert float(shape_ratio(shape, np.array([r]))[0]) == pytest.approx(expected, abs=1e-12)
 
 
