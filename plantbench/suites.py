@@ -122,6 +122,8 @@ class CaptureSettings(Strict):
     width: int = Field(default=512, ge=16, le=4096, description="image width, pixels")
     height: int = Field(default=512, ge=16, le=4096, description="image height, pixels")
     spp: int = Field(default=16, ge=1, le=4096, description="samples per pixel of the path tracer")
+    denoise: bool = Field(default=False, description="denoise the colour renders with Intel Open Image Denoise "
+                                                     "(albedo and normal guides rendered beside the colour)")
     elevation: tuple[float, float] = Field(default=(5.0, 45.0), description="degrees above the horizon, low and high")
     scan: bool = Field(default=True, description="also simulate a terrestrial laser scan")
     stations: int = Field(default=1, ge=1, le=16, description="scanner stations on a circle")

@@ -309,6 +309,17 @@ def sensor_dict(mi, camera: Camera, *, spp: int, seed: int = 0) -> dict:
 # ------------------------------------------------------------------------------------------------ the scene
 
 
+AOV_CHANNELS = "albedo:albedo,nn:sh_normal"
+"""The guide images rendered beside the colour when the capture denoises (channels 3-5 albedo, 6-8 normals)."""
+
+
+def _integrator(options: CaptureOptions) -> dict:
+    """The path tracer; wrapped in Mitsuba's ``aov`` integrator when the capture denoises, so that each render also
+    gives the albedo and shading-normal guides Open Image Denoise takes."""
+    path = {"type": "path", "max_depth": int(options.max_depth)}
+    return {"type": "aov", "aovs": AOV_CHANNELS, "colour": path} if options.denoise else path
+
+
 def scene_dict(plant: Plant, cameras: list[Camera], options: CaptureOptions, rng: np.random.Generator,
                *, mi=None) -> dict:
     """The Mitsuba scene dict of ``plant`` seen by ``cameras`` (sensors ``sensor_0000`` ...), ready for
@@ -330,7 +341,7 @@ def scene_dict(plant: Plant, cameras: list[Camera], options: CaptureOptions, rng
 
     d: dict = {
         "type": "scene",
-        "integrator": {"type": "path", "max_depth": int(options.max_depth)},
+        "integrator": _integrator(options),
         **light_dicts(options.sun_elevation_deg, options.sun_azimuth_deg),
     }
     gv, gf, guv = ground_triangles(plant)

@@ -211,12 +211,12 @@ def skeleton_figure(run_dir: str | os.PathLike, case: str, path: str | os.PathLi
     fig, axes = plt.subplots(len(skeletons), 2, figsize=(8, 4.2 * len(skeletons)), squeeze=False)
     for row, (method, sk) in enumerate(skeletons):
         e = sk.edges
-        width = 0.3 + 40 * np.sqrt(np.maximum(sk.radii[e[:, 1]], 0))
+        width = np.minimum(0.3 + 6.0 * np.sqrt(np.maximum(sk.radii[e[:, 1]], 0)), 3.0)
         for col, (ax_i, name) in enumerate(((0, "front (x-z)"), (1, "side (y-z)"))):
             ax = axes[row, col]
-            ax.scatter(pts[:, ax_i], pts[:, 2], s=0.3, c="0.65", linewidths=0, rasterized=True)
+            ax.scatter(pts[:, ax_i], pts[:, 2], s=0.5, c="0.45", linewidths=0, rasterized=True)
             segs = np.stack([sk.positions[e[:, 0]][:, [ax_i, 2]], sk.positions[e[:, 1]][:, [ax_i, 2]]], axis=1)
-            ax.add_collection(LineCollection(segs, linewidths=np.minimum(width, 4.0), colors="tab:red", alpha=0.9))
+            ax.add_collection(LineCollection(segs, linewidths=width, colors="tab:red", alpha=0.8))
             ax.set_aspect("equal")
             ax.set_title(f"{case}, {method}: {name}", fontsize=9)
             ax.tick_params(labelsize=7)
