@@ -204,6 +204,7 @@ _LABELS_AND_FLOORS = {
     "skeleton.f1@1.0": ("skel F1 1r", 0.005),
     "points.all.fscore@1%": ("points F1%H", 0.005),
 }
+METRICS["support.skeleton@spacing"] = MetricInfo(**{**vars(METRICS["support.skeleton@spacing"]), "short": "support 2s"})
 for _name, (_short, _floor) in _LABELS_AND_FLOORS.items():
     METRICS[_name] = MetricInfo(**{**vars(METRICS[_name]), "short": _short, "floor": _floor})
 assert set(_LABELS_AND_FLOORS) == set(KEY_METRICS) and all(len(m.short or "") <= 11 for m in METRICS.values())

@@ -159,7 +159,10 @@ def summary_lines(table, metrics: tuple[str, ...] = HEADLINE, *, oracles: tuple[
     their widest entry), so it reads the same on a terminal, in a pipe and in a CI log. ``oracles``: methods marked
     with '*' (they read ground truth)."""
     agg = aggregate(table)
-    present = [m for m in metrics if m in set(agg["metric"])]
+    scored = set(agg.loc[np.isfinite(agg["mean"].to_numpy(float)), "metric"])
+    if "family" in table.columns and (table["family"] == "real").any():  # real captures: the sparse-scan support
+        metrics = (*metrics, "support.skeleton@spacing")
+    present = [m for m in metrics if m in scored]  # (a run without ground truth has no fidelity column)
     methods = sorted(agg["method"].unique(), key=lambda m: (m not in oracles, m))
     idx = agg.set_index(["metric", "method"])
     cells = table.groupby(["method", "case"])["status"].agg(lambda s: (s != "ok").any())
