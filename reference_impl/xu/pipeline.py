@@ -69,6 +69,9 @@ class XuParams:
     """Largest gap bridged by probing at 20 m (Table I, section 4.2)."""
     probe_height_fraction: float = 2.0 / 3.0
     """Only nodes with shortest path below this fraction of the height probe (section 4.2)."""
+    stem_gap_share: float = 0.5
+    """When the probed skeleton spans less than this share of the height, a gap in the stem's scan stopped it: the
+    probing is run again persistently (:func:`reference_impl.xu.skeleton.probe_extend`) [S]."""
     support_distance: float = 0.1
     """d0: largest distance from a supported leaf location to its feasible node at 20 m (Table I, section 4.3)."""
     density_range: float = 0.5
@@ -215,9 +218,13 @@ def _scanned_skeleton(cloud: np.ndarray, cloud_height: np.ndarray, height: float
     in_main = _main_components(labels, roots)
     main = bin_skeleton(cloud, graph, np.flatnonzero(in_main), roots, width)
     stats = {"subgraphs": int(ncomp), "roots": len(roots), "main_nodes": len(main.positions)}
-    ext, attached, joined = probe_extend(cloud, graph, labels, main, in_main, width=width,
-                                         cone_deg=params.cone_angle_deg, gap=gap,
-                                         max_geodesic=params.probe_height_fraction * height)
+    probe = dict(width=width, cone_deg=params.cone_angle_deg, gap=gap,
+                 max_geodesic=params.probe_height_fraction * height)
+    ext, attached, joined = probe_extend(cloud, graph, labels, main, in_main, **probe)
+    z = ext.positions[:, 2] - cloud_height.min() if len(ext.positions) else np.zeros(1)
+    if z.max() - z.min() < params.stem_gap_share * height:  # a gap in the stem's scan stopped the skeleton
+        ext, attached, joined = probe_extend(cloud, graph, labels, main, in_main, persistent=True, **probe)
+        stats["persistent_probing"] = True
     stats["joined_subgraphs"] = joined
     # bin-noise spurs go; their points count as leaf points with the unattached ones
     keep = prune_short_tips(ext.positions, ext.parents, params.spur_bins * width)

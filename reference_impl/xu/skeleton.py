@@ -156,7 +156,8 @@ def _append(pos: list, par: list, geo: list, point_node: np.ndarray, sub: BinSke
 
 def probe_extend(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray, main: BinSkeleton,
                  attached: np.ndarray, *, width: float, cone_deg: float, gap: float, max_geodesic: float,
-                 min_nodes: int = 2, tangent_nodes: int = 3) -> tuple[BinSkeleton, np.ndarray, int]:
+                 min_nodes: int = 2, tangent_nodes: int = 3, persistent: bool = False, large_share: float = 0.1
+                 ) -> tuple[BinSkeleton, np.ndarray, int]:
     """Section 4.2: breadth-first over the skeleton; at each node with geodesic distance below ``max_geodesic`` a
     cone (half-angle ``cone_deg``, along parent -> node) looks for the nearest point of an unattached subgraph G
     within ``gap``; G's own bin skeleton is built from that point P; a cone from P along the tangent T (from G's
@@ -165,6 +166,13 @@ def probe_extend(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray, m
 
     labels : (n,) connected-component label of every point; attached : (n,) bool, points already in the skeleton.
     Subgraphs whose skeleton has fewer than ``min_nodes`` nodes are not joined (our guard: no tangent exists).
+
+    ``persistent`` (our fallback for a stem whose scan has a gap, :func:`reference_impl.xu.pipeline`): a node whose
+    nearest subgraph cannot join (too small, or failing the backward probe) probes again past it, since on a sparse
+    scan the nearest fragment across a gap is often a point or two; and a subgraph holding at least ``large_share`` of
+    the points joins at the probing node even when the backward probe misses: the backward probe guards against
+    joining noise, and a crown that a gap in the stem cut off is not noise, but its tangent at P follows whichever
+    branch P lies on.
     Each node probes once, so the loop is bounded by the final node count. Returns the extended skeleton, the
     updated ``attached`` mask and the number of subgraphs joined.
     """
@@ -183,19 +191,29 @@ def probe_extend(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray, m
         if geo[v] >= max_geodesic:
             continue
         axis = unit(pos[v] - pos[par[v]]) if par[v] >= 0 else np.array([0.0, 0.0, 1.0])
-        p_idx = _probe(tree, points, labels, attached, rejected, pos[v], axis, half, gap)
-        if p_idx < 0:
-            continue
-        members = np.flatnonzero(labels == labels[p_idx])
-        sub = bin_skeleton(points, graph, members, np.array([p_idx]), width)
-        if len(sub.positions) < min_nodes:
-            rejected[labels[p_idx]] = True
-            continue
-        # tangent at P: from the centroid of G's first nodes (by geodesic distance) back through P
-        first = np.argsort(sub.geodesic, kind="stable")[:tangent_nodes]
-        p_pos = points[p_idx]
-        tangent = unit(p_pos - sub.positions[first[1:]].mean(0)) if len(first) > 1 else -axis
-        q_node = _back_probe(pos, par, geo, p_pos, tangent, half, gap, width)
+        skip = rejected.copy()  # subgraphs this node has tried
+        q_node = -1
+        while q_node < 0:  # the nearest subgraph in the cone first; past it when it cannot join
+            p_idx = _probe(tree, points, labels, attached, skip, pos[v], axis, half, gap)
+            if p_idx < 0:
+                break
+            skip[labels[p_idx]] = True
+            members = np.flatnonzero(labels == labels[p_idx])
+            sub = bin_skeleton(points, graph, members, np.array([p_idx]), width)
+            if len(sub.positions) < min_nodes:
+                rejected[labels[p_idx]] = True
+                if not persistent:
+                    break
+                continue
+            # tangent at P: from the centroid of G's first nodes (by geodesic distance) back through P
+            first = np.argsort(sub.geodesic, kind="stable")[:tangent_nodes]
+            p_pos = points[p_idx]
+            tangent = unit(p_pos - sub.positions[first[1:]].mean(0)) if len(first) > 1 else -axis
+            q_node = _back_probe(pos, par, geo, p_pos, tangent, half, gap, width)
+            if q_node < 0 and persistent and len(members) >= large_share * len(points):
+                q_node = v  # a large part of the cloud straight ahead of the skeleton: joined at the probing node
+            if q_node < 0 and not persistent:
+                break
         if q_node < 0:
             continue
         queue.extend(_append(pos, par, geo, point_node, sub, q_node, p_pos))
