@@ -149,6 +149,38 @@ def filter_depth_maps(
     return [r[0] for r in results], [r[1] for r in results]
 
 
+def downscale_views(images: list[np.ndarray], cameras: list[Camera], max_size: int
+                    ) -> tuple[list[np.ndarray], list[Camera], float]:
+    """The views with their longer side at most ``max_size`` pixels: images area-averaged, cameras scaled (pixel
+    centres at integers: u' + 0.5 = s (u + 0.5)); views already small enough are returned as they are. Returns the
+    images, the cameras and the scale s of the largest view (1.0 when none was larger)."""
+    import cv2
+
+    out_i, out_c, smallest = [], [], 1.0
+    for img, cam in zip(images, cameras, strict=True):
+        s = max_size / max(cam.width, cam.height)
+        if s >= 1.0:
+            out_i.append(img)
+            out_c.append(cam)
+            continue
+        w, h = max(1, round(cam.width * s)), max(1, round(cam.height * s))
+        sx, sy = w / cam.width, h / cam.height
+        S = np.array([[sx, 0.0, 0.5 * sx - 0.5], [0.0, sy, 0.5 * sy - 0.5], [0.0, 0.0, 1.0]])
+        out_i.append(cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA))
+        out_c.append(Camera(S @ cam.K, cam.R, cam.t, w, h))
+        smallest = min(smallest, s)
+    return out_i, out_c, smallest
+
+
+def _to_size(depth: np.ndarray, cam: Camera) -> np.ndarray:
+    """A working-size depth map at the camera's own size (nearest neighbour: no depth blended across an edge)."""
+    import cv2
+
+    if depth.shape == (cam.height, cam.width):
+        return depth
+    return cv2.resize(depth, (cam.width, cam.height), interpolation=cv2.INTER_NEAREST)
+
+
 def _fields(normals: np.ndarray, colours: np.ndarray) -> dict[str, np.ndarray]:
     n = normals.astype(np.float32)
     c = colours.astype(np.uint8)
@@ -183,6 +215,9 @@ def reconstruct_points(capture_dir: str | Path, out_dir: str | Path, params: MVS
         cameras = [res.cameras[i] for i in used]
         images = [images[i] for i in used]
     stats["views_used"] = len(used)
+    native = cameras
+    if params.max_size is not None and params.depth != "oracle":
+        images, cameras, stats["working_scale"] = downscale_views(images, cameras, params.max_size)
     scale = scene_scale(cameras)
     if params.depth == "oracle":
         from .oracle import oracle_depths
@@ -205,7 +240,8 @@ def reconstruct_points(capture_dir: str | Path, out_dir: str | Path, params: MVS
         stats["pixels_matched"] = int(sum(np.isfinite(m.depth).sum() for m in maps))
         stats["pixels_kept"] = int(sum(k.sum() for k in keep))
     if params.poses == "known" or params.write_depth:
-        _write_depth(out / "depth", [names[i] for i in used], depths, maps if params.write_depth else None)
+        written = depths if cameras is native else [_to_size(d, c) for d, c in zip(depths, native, strict=True)]
+        _write_depth(out / "depth", [names[i] for i in used], written, maps if params.write_depth else None)
     t0 = time.perf_counter()
     pts, nrm, col, _ = fuse_views(depths, normals, images, cameras, keep)
     stats["points_fused"] = len(pts)

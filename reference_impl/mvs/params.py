@@ -202,6 +202,11 @@ class MVSParams:
     views/instance and plant/plant.json, being an oracle)."""
     noise: float = 0.0
     """Oracle mode: Gaussian z-depth noise sigma as a fraction of the plant height (plant.json)."""
+    max_size: int | None = None
+    """Largest image side, pixels, at which depth is estimated: larger views are downscaled by area averaging (their
+    cameras with them) before the sweep, and the filtered depth maps written at the views' own size (nearest
+    neighbour); None: every view at its own size. The window, filter and fusion parameters are in pixels of the
+    image that is matched."""
     write_depth: bool = False
     """With known poses the filtered depth maps are always written (out_dir/depth/NNNN.npz, key ``depth``: the leaf
     segmentation of guo reads them); this adds the raw depth, normal and cost maps (and writes them with SfM poses
@@ -222,6 +227,8 @@ class MVSParams:
             raise InputError(f"mvs: depth must be 'estimated' or 'oracle', got {self.depth!r}")
         if not self.noise >= 0:
             raise InputError(f"mvs: noise must be >= 0, got {self.noise!r}")
+        if self.max_size is not None and not (isinstance(self.max_size, int) and self.max_size >= 64):
+            raise InputError(f"mvs: max_size must be an integer >= 64 (pixels) or absent, got {self.max_size!r}")
 
     @classmethod
     def from_options(cls, options: dict) -> MVSParams:

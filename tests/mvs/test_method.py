@@ -125,6 +125,32 @@ def test_estimated_cloud_is_accurate(case, tmp_path, scene):
         assert {"depth", "raw_depth", "normal", "cost"} <= set(z.files)
 
 
+def test_max_size_matches_at_a_reduced_size_and_writes_depth_at_the_views_size(case, tmp_path, scene):
+    """max_size 96 on 128 px views: depth estimated on area-downscaled views whose scaled cameras project the scene
+    where the downscaled image shows it (the cloud stays on the analytic surfaces), the depth maps written at 128 px."""
+    from reference_impl.mvs.method import downscale_views, load_views
+
+    images, cameras, _ = load_views(case)
+    small, cams, s = downscale_views(images, cameras, 96)
+    assert s == 0.75 and small[0].shape == (96, 96, 3) and (cams[0].width, cams[0].height) == (96, 96)
+    # a point projects to s (u + 0.5) - 0.5 in the downscaled view
+    x = np.array([0.1, -0.2, 0.5])
+    uv = lambda c: (c.K @ (c.R @ x + c.t))[:2] / (c.K @ (c.R @ x + c.t))[2]  # noqa: E731
+    assert np.allclose(uv(cams[0]), 0.75 * (uv(cameras[0]) + 0.5) - 0.5)
+    assert downscale_views(images, cameras, 128)[1][0] is cameras[0]  # small enough: unchanged
+    out = tmp_path / "small"
+    methods.get("mvs").reconstruct(case, out, seed=0, points=20000, max_size=96, depth_params__hypotheses=64,
+                                   depth_params__pm_iterations=1, filter__consistency_views=4)
+    pts = read_reconstruction(out).points
+    assert len(pts) > 500 and np.median(analytic_distance(scene, pts)) < 0.015 * synthetic.scene_height(scene)
+    stats = json.loads((out / "mvs.json").read_text())
+    assert stats["working_scale"] == 0.75
+    with np.load(next((out / "depth").glob("*.npz"))) as z:
+        assert z["depth"].shape == (128, 128)
+    with pytest.raises(InputError, match="max_size"):
+        MVSParams(max_size=10)
+
+
 def test_sfm_options_reach_their_group():
     p = MVSParams.from_options({"poses": "sfm", "sfm__guided_matching": False, "sfm__peak_threshold": 0.004})
     assert p.sfm.guided_matching is False and p.sfm.peak_threshold == 0.004 and p.sfm.domain_size_pooling
