@@ -160,6 +160,9 @@ class Sweep(Strict):
     values: list[float | int | str] = Field(min_length=1)
     linked: dict[str, list[float | int | str]] = Field(
         default_factory=dict, description="dotted setting -> its value at each sweep value (same length as values)")
+    labels: list[str] | None = Field(
+        default=None, description="a name per level (same length as values; default: the values), for sweeps whose "
+                                  "levels share a value of the swept parameter and differ in a linked one")
 
     @model_validator(mode="after")
     def _linked_lengths(self):
@@ -168,11 +171,18 @@ class Sweep(Strict):
                 raise ValueError(f"sweep.linked {name!r} has {len(vals)} values for {len(self.values)} sweep values")
             if name == self.parameter:
                 raise ValueError(f"sweep.linked {name!r} is the swept parameter itself")
+        names = self.labels if self.labels is not None else [str(v) for v in self.values]
+        if len(names) != len(self.values):
+            raise ValueError(f"sweep.labels has {len(names)} labels for {len(self.values)} sweep values")
+        if len(set(names)) != len(names):
+            raise ValueError("sweep levels must have distinct names (give sweep.labels where values repeat)")
         return self
 
     def levels(self) -> list[tuple[Any, dict[str, Any]]]:
-        """(sweep value, {dotted setting: value}) per level, the swept parameter first."""
-        return [(v, {self.parameter: v, **{k: vals[i] for k, vals in self.linked.items()}})
+        """(level name: the label, or the sweep value, {dotted setting: value}) per level, the swept parameter
+        first."""
+        names = self.labels if self.labels is not None else self.values
+        return [(names[i], {self.parameter: v, **{k: vals[i] for k, vals in self.linked.items()}})
                 for i, v in enumerate(self.values)]
 
 

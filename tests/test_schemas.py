@@ -71,3 +71,24 @@ def test_sweep_with_linked_settings():
     data["sweep"]["linked"] = {"capture.stations": [1, 2, 3, 99]}
     with pytest.raises(InputError, match="stations"):
         make_plan(Suite.model_validate(data), ["gt"])
+
+
+def test_sweep_labels_name_levels_that_share_a_value():
+    """Two levels with the same swept value (512 px, with and without denoising) are told apart by their labels;
+    labels must be distinct and one per value."""
+    from plantbench.runner.plan import make_plan
+
+    base = {"name": "s", "description": "d", "methods": ["gt"], "cases": [{"species": "laurel", "seeds": [1]}]}
+    sweep = {"parameter": "capture.width", "values": [512, 512, 1024], "labels": ["512", "512-dn", "1024"],
+             "linked": {"capture.denoise": [False, True, False]}}
+    suite = Suite.model_validate({**base, "sweep": sweep})
+    assert [name for name, _ in suite.sweep.levels()] == ["512", "512-dn", "1024"]
+    plan = make_plan(suite, ["gt"])
+    captures = {j.params["settings"]["width"] * 10 + j.params["settings"]["denoise"]
+                for j in plan.jobs.values() if j.kind == "capture"}
+    assert captures == {5120, 5121, 10240}
+    assert {c.case for c in plan.cells} == {"laurel-1@512", "laurel-1@512-dn", "laurel-1@1024"}
+    with pytest.raises(ValidationError, match="distinct names"):
+        Suite.model_validate({**base, "sweep": {**sweep, "labels": None}})
+    with pytest.raises(ValidationError, match="2 labels for 3"):
+        Suite.model_validate({**base, "sweep": {**sweep, "labels": ["a", "b"]}})
