@@ -237,8 +237,8 @@ def _pred_to_gt(g: SkeletonSamples, p: SkeletonSamples, taus: list[float], facto
 _SETTLE_MIN = 100_000
 """Predicted samples from which :func:`_pred_to_gt` settles most of them from anchors."""
 _SETTLE_EVERY = 16
-"""One anchor per this many consecutive samples (half the gap of 8, half the anchors' searches: 1.9 s less on the
-largest multiview cell, xu on wp_aspen, 3.6M samples)."""
+"""One anchor per this many consecutive samples: fewer anchors are fewer searches; a sample farther than
+:data:`_SETTLE_GAP` from its anchor is searched itself."""
 _SETTLE_GAP = 0.02
 """Samples farther than this (metres) from their anchor (across an edge's end) are searched themselves."""
 

@@ -41,9 +41,8 @@ TANGLE = "tangle-20%"
 PRIORS = ("prior-a", "prior-b")
 MATERIAL = 0.25
 """Share of the distance from the exact plant to the better prior that the ``twigs+400%`` rung (about five times
-the true branch count) must lose, for a metric to see invented branches: a metric that loses less only by rounding
-(the volume-weighted vF1 loses 0.03-0.14 of a 0.6-0.7 gap) orders the twig rungs without telling a tree from a
-tangle of twigs."""
+the true branch count) must lose, for a metric to see invented branches: a metric that loses less orders the twig
+rungs by a rounding's worth without telling a tree from a tangle of twigs."""
 VOLUME_CHECKS = ("orders<=2>prior", "jitter-0.5%>prior", "pruning monotone", "jitter monotone")
 """The checks of the volume verdict (every fidelity metric of the headline passes them)."""
 STRUCTURE_CHECKS = ("twigs ordered", "tangle<gt", "twigs+400% material")

@@ -103,8 +103,7 @@ def stem_radius(points: np.ndarray, base: np.ndarray, direction: np.ndarray, *, 
     axis, where on a stem thicker than the smallest windows they fit arcs of its bark), the windows are tried again
     about the centre of the largest window's circle, and that answer wins when its circle is the larger, ``base``
     lies on it (within a quarter of its radius) and :func:`_bark_ring` finds the points near it to be one stem's
-    hollow bark ring, not a circle through two stems or a ring of thin stems [S: the lowest point of wp_oak's 44 cm
-    trunk gave a 4.3 cm circle on its mvs cloud].
+    hollow bark ring, not a circle through two stems or a ring of thin stems [S: docs/tuning/xu.md].
     """
     fit = _nested_fit(points, base, direction, length, max_radius, windows)
     if on_bark:
@@ -154,8 +153,7 @@ def _on_circle(points: np.ndarray, centre: np.ndarray, direction: np.ndarray, r:
 
 def _bark_ring(on: float, sectors: float, inside: float) -> bool:
     """Whether :func:`_on_circle`'s shares describe one stem's bark: 60 % of the points on it, reaching three
-    quarters of the sectors, at most a tenth inside [S: the mvs and exact-depth rings of wp_oak, wp_weeping_willow:
-    0.60-1.0 on, 0.81-1.0 of the sectors, <= 0.07 inside; a circle through cercis's stems: 0.58, 0.61, 0.09]."""
+    quarters of the sectors, at most a tenth inside [S: docs/tuning/xu.md]."""
     return on >= 0.6 and sectors >= 0.75 and inside <= 0.1
 
 

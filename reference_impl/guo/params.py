@@ -62,10 +62,9 @@ class GuoParams:
     Guo et al. 2017), which would stall the first cycles [S: the bottom of the range d_i in [4 l, 12 l] that section
     5.2 quotes and of Palubicki's 4-6 internodes; docs/tuning/guo.md]."""
     rho_max: float = 4.0
-    """d_i is at most rho_max * l [S: measured, docs/tuning/guo.md: a perception radius above 4 l averages the
-    markers of neighbouring limbs into a direction between them (skeleton vF1@1% on the multiview mvs clouds 0.531
-    at [4 l, 4 l], 0.509 at [4 l, 6 l], 0.497 at [6 l, 12 l]), so d_i is 4 l on every plant; Eq. 7 drives d_i again
-    when rho_max is raised (Guo et al. 2018: 12 l)]."""
+    """d_i is at most rho_max * l: a wider perception cone holds the markers of neighbouring limbs and Eq. 9 aims
+    the shoot between them; with rho_min = rho_max d_i is the same on every plant, and Eq. 7 drives d_i again when
+    rho_max is raised (Guo et al. 2018: 12 l) [S: measured, docs/tuning/guo.md]."""
     alpha: float = 1.6
     """Weight of V_opt in Eq. 9 [P]."""
     beta: float = 0.3
@@ -104,9 +103,8 @@ class GuoParams:
     # --- roots (section 5.3, Fig. 9)
     root_slab: float = 0.05
     """Points lower than this fraction of the height are projected on the ground plane for the density map (the
-    stems' bases; the crown's projection would otherwise mask them) [S: at 0.1 the low crown of the cercis shrub
-    and the laurel's lowest leaves filled the slab: 30 roots for the cercis's 5 stems, the laurel's 5 cm off its
-    trunk, on their exact-depth clouds; at 0.05 6 roots (5 within 2.2-5.1 cm) and 0.2 cm]."""
+    stems' bases; the crown's projection would otherwise mask them): low enough that a shrub's low crown and the
+    lowest leaves stay out of the slab [S: measured, docs/tuning/guo.md]."""
     root_central: float = 0.4
     """... and, for a single-stem species, within this fraction of the crown radius (90th percentile of the points'
     horizontal distances from their median) of the plant's centre, when at least 3 slab points are: branch tips

@@ -31,14 +31,12 @@ class LeafParams:
     # ---- depth input
     speckle_fraction: float = 0.01
     """Depth speckle removal before segmentation [S]: an 8-connected piece of a view's depth map smaller than this
-    fraction of (leaf length in pixels at the view's median depth)^2 loses its depth (exact depth has none; on mvs
-    depth of the leaves suite's rubber plant they are 98 % of the leaf stage's false leaves). 0: off."""
+    fraction of (leaf length in pixels at the view's median depth)^2 loses its depth (exact depth has none; mvs
+    depth's speckles become false leaves). 0: off. Evidence: docs/tuning/mvs.md."""
     # ---- section 4.1: per view
     superpixels_per_leaf: float = 40.0
-    """SLIC target: expected projected leaf area / superpixel area (the paper over-segments leaves, Fig. 2(b)). [S]
-    (the leaves suites use 10: on their mvs depth, 10 per leaf gave candidates that hold a leaf alone for 25 % of
-    the leaves a view sees against 16 % with 40, and 1.9 % of the edges between two leaves passed Eq. 8's
-    threshold against 11.5 %; docs/tuning/mvs.md)"""
+    """SLIC target: expected projected leaf area / superpixel area (the paper over-segments leaves, Fig. 2(b)) [S].
+    The leaves suites use 10, fewer superpixels per leaf on mvs depth: docs/tuning/mvs.md."""
     min_superpixel_px: int = 12
     """Smallest target superpixel area in pixels (bounds the SLIC segment count on far-away, tiny leaves)."""
     slic_compactness: float = 10.0
@@ -77,28 +75,23 @@ class LeafParams:
     is conjoined leaves or background, skipped as ``not_leaf_shaped`` (the generator's leaves vary log-normally
     with sd 0.12-0.15: twice the mean is over 4 sd out). [S]"""
     min_views: int = 1
-    """A leaf whose points come from fewer views is skipped as ``few_views`` [S] (1: off; the leaves suite uses 3:
-    on the rubber plant's mvs depth at 64 spp, 20 of its 34 false leaves had 21-77 points from 1-2 views, while
-    every true leaf had points from 21-36 of the 36 views)."""
+    """A leaf whose points come from fewer views is skipped as ``few_views`` [S] (1: off; the leaves suites use 3:
+    false leaves on mvs depth come from one or two views, true leaves from most; docs/tuning/mvs.md)."""
     duplicate_fraction: float = 0.5
     """A candidate whose points were already claimed by earlier leaves in this proportion is a duplicate."""
     overlap_fraction: float = 0.8
     """After the fit, a blade whose points lie within ``capture_distance`` x delta_plane of a larger fitted blade in
-    at least this proportion is a fragment of it, dropped as ``duplicate`` [S] (0.5 dropped real leaves beside
-    conjoined blades on the rubber plant's mvs depth: recall 0.86 against 0.95 at 0.8)."""
+    at least this proportion is a fragment of it, dropped as ``duplicate`` [S] (lower values also drop real leaves
+    beside conjoined blades; docs/tuning/mvs.md)."""
     fragment_fraction: float = 0.0
     """After the fit, a blade whose points lie within delta_plane / 2 of a larger blade's plane in at least this
     proportion, less than a leaf length from it and touching it, is a piece of the same leaf, dropped as
-    ``duplicate`` [S] (0: off; the leaves suite uses 0.95: on the rubber plant's mvs depth at 64 spp the 8 such
-    pieces had 0.97-1.00 of their points in the plane, the true leaves at most 0.87)."""
+    ``duplicate`` [S] (0: off; the leaves suites use 0.95; docs/tuning/mvs.md)."""
     min_point_fraction: float = 0.0
     """After the fit, a blade with fewer points than this fraction of the typical blade's (the point-weighted
-    median of the blades' point counts) is skipped as ``few_points_after_icp`` [S] (0: off; the leaves suites use
-    0.1 with 10 superpixels per leaf: on coffee's mvs depth the typical blade had 39,000 points, the true leaves
-    7,000-10,000 at the 10th percentile, the false blades and fragments a median of 4,000-8,000. With 40
-    superpixels per leaf, 0.02: on the fiddle-leaf fig's mvs depth at 64 spp, 15 false blades had 23-328 points,
-    its true leaves over 13,000; on the rubber plant's depth with adaptive propagation, 53 false blades of 21-1,945
-    points outnumbered the 22 leaves of 25,000-106,000, so a plain median was one of theirs)."""
+    median of the blades' point counts, so that many small false blades do not set it) is skipped as
+    ``few_points_after_icp`` [S] (0: off; the leaves suites use 0.1 with 10 superpixels per leaf, 0.02 with 40;
+    docs/tuning/mvs.md)."""
     # ---- section 5: fitting
     scanlines: int = 24
     """UV mapping: scanlines perpendicular to the axis, evenly spaced in v in [0, 1]."""

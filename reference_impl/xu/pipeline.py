@@ -84,8 +84,8 @@ class XuParams:
     certain radius based on leaf or leaf cluster size for the tree species in question") and d0 = leaf_size x
     support_distance / leaf_group (Table I's 0.1 m twig length is a leaf-scale length too, the elm's leaf, not a
     twentieth of its height). The method sets it from the species hint's leaf length. None: both scaled by height
-    [S: with height-scaled lengths a 4.8 m peach's d0 was 2.4 cm against its 12 cm leaves, and synthesis grew
-    7.6x the true branch count on the multiview suite's oracle cloud; 4.1x with the leaf's]."""
+    (on a small plant d0 then falls below a leaf's length and synthesis over-branches) [S: measured,
+    docs/tuning/xu.md]."""
     synthesis_iterations: int = 3
     """Maximal skeleton synthesis iterations (Table I, section 4.3)."""
     bare_twig_keep: float = 0.25
@@ -112,14 +112,13 @@ class XuParams:
     """Random perturbation of the quad normals (section 6: "slightly") [S]."""
     empty_tolerance_fraction: float = 0.025
     """An edge crosses empty space where a point along it lies farther than this fraction of the height from every
-    point of the (downsampled) cloud; synthesis refuses a copy or twig with such an edge [S: issue 25, "no edge
-    through empty space", while synthesis may still bridge the gaps occlusion leaves inside the crown: the density
-    range, 0.5 m at 20 m. At 1 % of the height (the GT-free support check's tolerance) it refused 227 of 260 copies
-    on the quick suite's 23k-point cercis cloud and the crown went without branches]. 0: no test."""
+    point of the (downsampled) cloud; synthesis refuses a copy or twig with such an edge [S: no edge through empty
+    space, while synthesis may still bridge the gaps occlusion leaves inside the crown, up to the density range;
+    a tolerance as tight as the support check's refuses most copies: docs/tuning/xu.md]. 0: no test."""
     association_reach: float = 0.5
     """An unsupported leaf location (no feasible node within d0) is associated with its nearest feasible node only
     within d0 plus this distance at 20 m (the density range), so synthesis never hangs a copy from a node across the
-    crown [S: issue 25; the paper associates every location with its nearest feasible node, at any distance]."""
+    crown [S; the paper associates every location with its nearest feasible node, at any distance]."""
     max_nodes: int = 20000
     """Synthesis stops beyond this many skeleton nodes [S: bounds time and memory; Table II reaches 14,653 nodes
     for a 20 m elm]."""
