@@ -136,10 +136,11 @@ def headline_table(table, metrics: tuple[str, ...]):
     return pd.DataFrame(rows, columns=["metric", *methods])
 
 
-def comparison_table(table, metrics: tuple[str, ...], reference: str = "prior"):
+def comparison_table(table, metrics: tuple[str, ...], reference: str = "prior", *, by: str | None = None):
     """Paired differences over cases (:func:`plantbench.report.tables.paired_differences`): every method against
-    ``reference`` (the no-data prior) and every pair of the other non-oracle methods. Returns (DataFrame of
-    strings, raw differences)."""
+    ``reference`` (the no-data prior) and every pair of the other non-oracle methods, with the minimum detectable
+    difference (the interval's half-width for this n); with ``by`` (e.g. 'family'), within each group of cases.
+    Returns (DataFrame of strings, raw differences)."""
     import pandas as pd
 
     from plantbench.report.tables import paired_differences
@@ -149,16 +150,26 @@ def comparison_table(table, metrics: tuple[str, ...], reference: str = "prior"):
     methods = [m for m in names if not m.endswith(ORACLE_MARK) and m != ref]
     pairs = [(m, ref) for m in methods] if ref else []
     pairs += [(a, b) for i, a in enumerate(methods) for b in methods[i + 1:]]
-    raw = paired_differences(table, metrics, pairs)
-    rows = []
-    for r in raw.itertuples(index=False):
-        info = metric_info(r.metric)
-        unit = info.unit if info else ""
-        rows.append({"metric": _unit_label(r.metric), "comparison": f"{r.a} - {r.b}", "cases": r.n,
-                     "difference [95 % CI]": f"{format_value(r.diff, unit)} [{format_value(r.lo, unit)}, "
-                                             f"{format_value(r.hi, unit)}]",
-                     "verdict": r.verdict})
-    return pd.DataFrame(rows, columns=["metric", "comparison", "cases", "difference [95 % CI]", "verdict"]), raw
+    groups = [(None, table)] if by is None else list(table.groupby(by, sort=True))
+    raws, rows = [], []
+    for group, sub in groups:
+        raw = paired_differences(sub, metrics, pairs)
+        if by is not None:
+            raw.insert(0, by, group)
+        raws.append(raw)
+        for r in raw.to_dict("records"):
+            info = metric_info(r["metric"])
+            unit = info.unit if info else ""
+            row = {by: group} if by is not None else {}
+            row.update({"metric": _unit_label(r["metric"]), "comparison": f"{r['a']} - {r['b']}", "cases": r["n"],
+                        "difference [95 % CI]": f"{format_value(r['diff'], unit)} [{format_value(r['lo'], unit)}, "
+                                                f"{format_value(r['hi'], unit)}]",
+                        "MDD": format_value(r["mdd"], unit), "verdict": r["verdict"]})
+            rows.append(row)
+    cols = ([by] if by is not None else []) + ["metric", "comparison", "cases", "difference [95 % CI]", "MDD",
+                                               "verdict"]
+    raw = pd.concat(raws, ignore_index=True) if raws else pd.DataFrame()
+    return pd.DataFrame(rows, columns=cols), raw
 
 
 def _unit_label(metric: str) -> str:
@@ -236,8 +247,15 @@ def _tables(table, sweep: str | None = None) -> list[tuple[str, str, object]]:
     comp, _ = comparison_table(table, compared)
     if not comp.empty:
         out.append(("paired", "Paired differences over cases (mean and 95 % bootstrap CI): each method against the "
-                              "no-data prior, and each pair of methods. 'beats' only when the interval excludes 0",
+                              "no-data prior, and each pair of methods. 'beats' only when the interval excludes 0; "
+                              "MDD, the minimum detectable difference, is the interval's half-width: a difference "
+                              "smaller than it cannot be told from 0 with this suite's cases",
                     comp))
+    if "family" in table.columns and table["family"].nunique() > 1:
+        fam, _ = comparison_table(table, compared, by="family")
+        if not fam.empty:
+            out.append(("paired_family", "Paired differences within each plant family (mean, 95 % bootstrap CI and "
+                                         "MDD over that family's cases)", fam))
     paper = [m for _, m in PAPER_COLUMNS if m in set(table["metric"])]
     if paper:
         names = {m: label for label, m in PAPER_COLUMNS}

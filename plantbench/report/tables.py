@@ -80,7 +80,10 @@ def paired_differences(table, metrics: tuple[str, ...], pairs: list[tuple[str, s
     interval excludes 0 on the good side, 'a below b' when it excludes 0 on the bad side, else 'within noise'. A pair
     with no case scored by both is left out.
 
-    Returns a DataFrame: metric, a, b, n, diff, lo, hi, verdict.
+    ``mdd``, the minimum detectable difference, is the interval's half-width (hi - lo) / 2: the smallest mean
+    difference this suite's n cases and their spread let the paired bootstrap tell from 0.
+
+    Returns a DataFrame: metric, a, b, n, diff, lo, hi, mdd, verdict.
     """
     import pandas as pd
 
@@ -107,8 +110,9 @@ def paired_differences(table, metrics: tuple[str, ...], pairs: list[tuple[str, s
                     good = (lo > 0) == bool(higher)
                     verdict = f"{a} beats {b}" if good else f"{a} below {b}"
             rows.append({"metric": metric, "a": a, "b": b, "n": int(d.size),
-                         "diff": float(d.mean()) if d.size else float("nan"), "lo": lo, "hi": hi, "verdict": verdict})
-    return pd.DataFrame(rows, columns=["metric", "a", "b", "n", "diff", "lo", "hi", "verdict"])
+                         "diff": float(d.mean()) if d.size else float("nan"), "lo": lo, "hi": hi,
+                         "mdd": (hi - lo) / 2 if d.size > 1 else float("nan"), "verdict": verdict})
+    return pd.DataFrame(rows, columns=["metric", "a", "b", "n", "diff", "lo", "hi", "mdd", "verdict"])
 
 
 def compare_runs(table_a, table_b, *, label_a: str = "a", label_b: str = "b", metrics: tuple[str, ...] = KEY_METRICS,

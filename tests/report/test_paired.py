@@ -32,6 +32,7 @@ def test_paired_difference_against_a_hand_bootstrap():
     assert row["diff"] == pytest.approx(diff.mean())
     assert (row["lo"], row["hi"]) == pytest.approx(tuple(np.quantile(means, [0.025, 0.975])))
     assert row["verdict"] == "a beats prior" and row["n"] == 10
+    assert row["mdd"] == pytest.approx((row["hi"] - row["lo"]) / 2)  # the minimum detectable difference
     # unpaired, the intervals of the two means overlap: the pairing is what makes it a win
     assert np.quantile(base, 0.9) > np.quantile(a, 0.1)
     assert d.set_index("metric").loc["mesh_to_surface.D_cm", "verdict"] == "within noise"
@@ -93,3 +94,24 @@ def test_compare_runs_pairs_each_method_across_two_runs():
     assert row["mean_a"] == pytest.approx(base[keep].mean()) and row["mean_b"] == pytest.approx(base[keep].mean() + 0.1)
     assert row["verdict"] == "oracle better"
     assert t.set_index("metric").loc["mesh_to_surface.D_cm", "verdict"] == "oracle worse"
+
+
+def test_per_family_comparisons_with_their_minimum_detectable_difference():
+    """by='family': the paired differences within each family, over its own cases; the MDD shrinks with n (a paired
+    bootstrap half-width falls about as 1 / sqrt(n))."""
+    rng = np.random.default_rng(2)
+    rows = []
+    for n, family in ((6, "sc"), (24, "wp")):
+        for i in range(n):
+            base = rng.uniform(0.2, 0.8)
+            for method, v in (("prior", base), ("a", base + 0.05 + rng.normal(0, 0.1))):
+                rows.append({"case": f"{family}{i}", "species": "s", "family": family, "method": method,
+                             "metric": "skeleton.vf1@1%", "value": v, "status": "ok"})
+    t = pd.DataFrame(rows)
+    fam, raw = comparison_table(t, ("skeleton.vf1@1%",), by="family")
+    r = raw.set_index("family")
+    assert list(fam.columns) == ["family", "metric", "comparison", "cases", "difference [95 % CI]", "MDD", "verdict"]
+    assert (r.loc["sc", "n"], r.loc["wp", "n"]) == (6, 24) and r.loc["wp", "mdd"] < r.loc["sc", "mdd"]
+    for family, sub in t.groupby("family"):
+        alone = paired_differences(sub, ("skeleton.vf1@1%",), [("a", "prior")])
+        assert alone["mdd"].iloc[0] == pytest.approx(r.loc[family, "mdd"])
