@@ -121,7 +121,8 @@ def _skeleton_metrics(values: dict, reasons: dict, plant, skeleton, samples, opt
     from plantbench.metrics.structure import branch_count_log2_error, branch_prf
 
     if skeleton is None:
-        _set(values, reasons, "skeleton", None, "no skeleton.ply in the output")
+        for prefix in ("skeleton", "qsm"):
+            _set(values, reasons, prefix, None, "no skeleton.ply in the output")
         return
     a = skeleton_attributes(skeleton, breast_height=options.breast_height)
     _trait_metrics(values, reasons, skeleton, options)

@@ -155,3 +155,19 @@ def test_every_metric_registered_with_unit_and_direction():
         assert isinstance(info, MetricInfo) and isinstance(info.unit, str) and info.description
     assert metrics.get("stava.S_T").higher_is_better is True
     assert metrics.get("mesh_to_scan.D_cm").higher_is_better is False and metrics.get("mesh_to_scan.D_cm").unit == "cm"
+
+
+def test_a_point_cloud_alone_is_scored_as_a_cloud(case, tmp_path):
+    """The mvs stage's output: points.ply and no skeleton. The point metrics have values; every skeleton, trait
+    (skeleton.*, qsm.*) and support metric is None with the reason."""
+    from plantbench.io.ply import write_points
+
+    root, plant = case
+    out = tmp_path / "cloud"
+    out.mkdir()
+    write_points(out / "points.ply", plant.branch_mesh.vertices)
+    res, reasons = evaluate_detailed(root / "case", out, options=FAST)
+    assert res["points.count"] == len(plant.branch_mesh.vertices) and res["points.wood.precision@1%"] > 0.9
+    for name in ("skeleton.vf1@1%", "skeleton.branch_f1@1%", "skeleton.trunk_volume_l", "qsm.dbh_cm",
+                 "support.skeleton@spacing"):
+        assert res[name] is None and "skeleton.ply" in reasons[name], name
