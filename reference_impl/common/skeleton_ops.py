@@ -10,6 +10,7 @@
 - :func:`remove_chain_nodes`: drop single-child nodes that a rule accepts, in rounds of non-adjacent nodes.
 - :func:`remove_degree2`: drop single-child nodes lying within ``tol`` of the segment joining their parent and child.
 - :func:`prune_short_tips`: drop terminal chains shorter than a length (spur removal).
+- :func:`merge_close_forks`: merge two forks joined by a chain shorter than a length into one fork.
 - :func:`hermite_smooth`: Xu et al. 2007 section 4.4: a sharp transition A -> O -> B is replaced by a cubic Hermite
   curve from A to B with tangents along AO and OB, sampled more densely for sharper turns.
 
@@ -24,7 +25,7 @@ from plantbench.geometry.vectors import depths, levels, unit
 from reference_impl.common.graph import children_csr, edge_lengths, subtree_lengths
 
 __all__ = ["remove_nodes", "prune_by_ratio", "spatial_merge", "merge_siblings", "remove_chain_nodes",
-           "remove_degree2", "prune_short_tips", "hermite_smooth", "turn_angles", "branch_orders"]
+           "remove_degree2", "prune_short_tips", "merge_close_forks", "hermite_smooth", "turn_angles", "branch_orders"]
 
 
 def remove_nodes(parents: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -244,6 +245,46 @@ def prune_short_tips(positions: np.ndarray, parents: np.ndarray, min_length: flo
             c = idx[live_par[idx] >= 0]
             drop[c] |= drop[live_par[c]]
         keep &= ~drop
+    return keep
+
+
+def merge_close_forks(positions: np.ndarray, parents: np.ndarray, min_length: float, *, rounds: int = 8
+                      ) -> np.ndarray:
+    """(n,) keep mask after merging forks joined by a short chain: where a chain runs from a fork J1 to a fork J2
+    (two or more children) and is shorter than ``min_length``, its nodes after J1 (J2 included) go and J2's children
+    hang from J1 (:func:`remove_nodes`): one fork where two stood a chain's length apart (a noisy cloud splits one
+    fork into several, and every short chain between them is a branch of its own). A chain from a root is kept (the
+    stem's base stays). Up to ``rounds`` passes; in a pass no chain is merged whose J1 is another merged chain's J2,
+    so a run of close forks collapses in steps."""
+    pos = np.asarray(positions, float)
+    par = np.asarray(parents, np.int64)
+    alive = np.arange(len(par))  # original index of each current node
+    for _ in range(rounds):
+        n = len(par)
+        nk = np.bincount(par[par >= 0], minlength=n)
+        inc = edge_lengths(pos, par)
+        chains = []
+        for j2 in np.flatnonzero(nk >= 2).tolist():
+            nodes, total, v = [j2], inc[j2], par[j2]
+            while v >= 0 and nk[v] == 1 and par[v] >= 0:
+                nodes.append(v)
+                total += inc[v]
+                v = par[v]
+            if v >= 0 and nk[v] >= 2 and total < min_length:
+                chains.append((total, v, nodes))
+        drop = np.zeros(n, bool)
+        j1_used = np.zeros(n, bool)
+        for _, j1, nodes in sorted(chains, key=lambda c: c[0]):
+            if drop[j1] or j1_used[nodes[0]]:
+                continue
+            drop[nodes] = True
+            j1_used[j1] = True
+        if not drop.any():
+            break
+        par, _ = remove_nodes(par, ~drop)
+        pos, alive = pos[~drop], alive[~drop]
+    keep = np.zeros(len(parents), bool)
+    keep[alive] = True
     return keep
 
 

@@ -109,3 +109,27 @@ def test_hermite_smooth_rounds_a_right_angle():
         chain.append(v)
         v = spar[v]
     assert len(chain) == len(new) + 2  # 3, the samples, 1 (then the root 0)
+
+
+def test_merge_close_forks_joins_forks_a_short_chain_apart():
+    """A stem forking at z = 2 and again 5 cm higher: the second fork merges into the first (its children hang from
+    it), one fork instead of two and one branch fewer; a chain from the root is never merged; forks farther apart
+    than the length stay."""
+    from plantbench.plant import Skeleton
+    from plantbench.skeletons import branch_chains
+    from reference_impl.common.skeleton_ops import merge_close_forks, remove_nodes
+
+    pos = np.array([[0, 0, 0], [0, 0, 1], [0, 0, 2], [0, 0, 2.05], [1, 0, 2], [1, 0, 2.05], [0, 0, 3]], float)
+    par = np.array([-1, 0, 1, 2, 2, 3, 3])
+    keep = merge_close_forks(pos, par, 0.1)
+    assert keep.tolist() == [True, True, True, False, True, True, True]
+    new_par, index = remove_nodes(par, keep)
+    assert new_par[index[5]] == index[2] and new_par[index[6]] == index[2]  # the children of the merged fork
+    before = len(branch_chains(Skeleton(pos, np.ones(7), par)))
+    after = len(branch_chains(Skeleton(pos[keep], np.ones(int(keep.sum())), new_par)))
+    assert (before, after) == (5, 4)
+    assert merge_close_forks(pos, par, 0.04).all()  # 5 cm apart: not shorter than 4 cm
+    # a root with two children close to a fork: the root's chain is the stem's base and stays
+    pos2 = np.array([[0, 0, 0], [0, 0, 0.01], [1, 0, 0.01], [0, 0, 1], [0, 1, 0.01]], float)
+    par2 = np.array([-1, 0, 1, 1, 1])
+    assert merge_close_forks(pos2, par2, 0.5).all()
