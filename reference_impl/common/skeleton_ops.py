@@ -11,6 +11,7 @@
 - :func:`remove_degree2`: drop single-child nodes lying within ``tol`` of the segment joining their parent and child.
 - :func:`prune_short_tips`: drop terminal chains shorter than a length (spur removal).
 - :func:`merge_close_forks`: merge two forks joined by a chain shorter than a length into one fork.
+- :func:`simplify`: both, until nothing changes.
 - :func:`hermite_smooth`: Xu et al. 2007 section 4.4: a sharp transition A -> O -> B is replaced by a cubic Hermite
   curve from A to B with tangents along AO and OB, sampled more densely for sharper turns.
 
@@ -25,7 +26,8 @@ from plantbench.geometry.vectors import depths, levels, unit
 from reference_impl.common.graph import children_csr, edge_lengths, subtree_lengths
 
 __all__ = ["remove_nodes", "prune_by_ratio", "spatial_merge", "merge_siblings", "remove_chain_nodes",
-           "remove_degree2", "prune_short_tips", "merge_close_forks", "hermite_smooth", "turn_angles", "branch_orders"]
+           "remove_degree2", "prune_short_tips", "merge_close_forks", "simplify", "hermite_smooth", "turn_angles",
+           "branch_orders"]
 
 
 def remove_nodes(parents: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -286,6 +288,33 @@ def merge_close_forks(positions: np.ndarray, parents: np.ndarray, min_length: fl
     keep = np.zeros(len(parents), bool)
     keep[alive] = True
     return keep
+
+
+def simplify(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray | None = None, *, prune_tips: float = 0.0,
+             merge_forks: float = 0.0, rounds: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray | None,
+                                                                  np.ndarray]:
+    """A skeleton's structure simplified: forks joined by a chain shorter than ``merge_forks`` merged
+    (:func:`merge_close_forks`), then terminal chains shorter than ``prune_tips`` removed (:func:`prune_short_tips`),
+    both until nothing changes (at most ``rounds`` passes: a pruned spur can leave two forks a short chain apart).
+    Returns positions, parents and radii (None when not given) of the kept nodes, and their indices in the input."""
+    pos = np.asarray(positions, float)
+    par = np.asarray(parents, np.int64)
+    rad = None if radii is None else np.asarray(radii, float)
+    alive = np.arange(len(par))
+    for _ in range(rounds):
+        keep = np.ones(len(par), bool)
+        if merge_forks > 0:
+            keep &= merge_close_forks(pos, par, merge_forks)
+        if prune_tips > 0:
+            sub_par, _ = remove_nodes(par, keep)
+            sub_keep = prune_short_tips(pos[keep], sub_par, prune_tips, rounds=rounds)
+            keep[np.flatnonzero(keep)[~sub_keep]] = False
+        if keep.all():
+            break
+        par, _ = remove_nodes(par, keep)
+        pos, alive = pos[keep], alive[keep]
+        rad = None if rad is None else rad[keep]
+    return pos, par, rad, alive
 
 
 def turn_angles(positions: np.ndarray, parents: np.ndarray) -> np.ndarray:

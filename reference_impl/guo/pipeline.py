@@ -38,7 +38,7 @@ from reference_impl.common.geometry import branch_mesh
 from reference_impl.common.graph import median_spacing, voxel_downsample
 from reference_impl.common.ground import Ground
 from reference_impl.common.inputs import plant_height, split_ground
-from reference_impl.common.skeleton_ops import branch_orders
+from reference_impl.common.skeleton_ops import branch_orders, simplify
 from reference_impl.guo.growth import allometric_radii, grow
 from reference_impl.guo.hull import crown_mask, poisson_disk_in_hull, shell_ratio
 from reference_impl.guo.leaves import LeafConfig, PlacedLeaves, place_leaves
@@ -383,13 +383,18 @@ def model(prep: Prepared, prior: SpeciesPrior, params: GuoParams, rng: np.random
     g = grow(prep.markers, prep.weights, prep.roots, prep.axes, prep.root_radii, prep.height, prior, params)
     timings["growth"] = time.perf_counter() - t0
 
+    gpos, gpar, grad, glat = g.positions, g.parents, g.radii, g.lateral
+    if params.prune_tips > 0 or params.merge_forks > 0:  # the crown grown, its spurious forks and twigs shed
+        gpos, gpar, grad, kept = simplify(gpos, gpar, grad, prune_tips=params.prune_tips * ell,
+                                          merge_forks=params.merge_forks * ell)
+        glat = glat[kept]
     t0 = time.perf_counter()
     placed, turned, dropped, replaced_, off_cloud = 0, 0, {"unsupported": 0, "duplicates": 0}, 0, 0
     cloud_tree = cKDTree(prep.plant)
     if fitted is not None:
         fitted, off_cloud = supported_fitted(fitted, cloud_tree, prep.spacing, params.leaf_support)
     if fitted is None or merge:
-        foliage = _leaves(g.positions, g.parents, g.radii, g.lateral, prior.leaves or generic_leaves(), rng,
+        foliage = _leaves(gpos, gpar, grad, glat, prior.leaves or generic_leaves(), rng,
                           params.leaf_tip_internodes)
         placed = len(foliage.leaves)
         leaf_mesh, leaves = foliage.mesh, foliage.leaves
@@ -404,9 +409,9 @@ def model(prep: Prepared, prior: SpeciesPrior, params: GuoParams, rng: np.random
     timings["leaves"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    keep, par = collapse(g.positions, g.parents, g.radii, max_angle_deg=params.collapse_angle,
+    keep, par = collapse(gpos, gpar, grad, max_angle_deg=params.collapse_angle,
                          max_radius_change=params.collapse_radius)
-    pos, par, _ = smooth(g.positions[keep], par, angle_deg=params.smooth_angle, min_spacing=0.25 * ell)
+    pos, par, _ = smooth(gpos[keep], par, angle_deg=params.smooth_angle, min_spacing=0.25 * ell)
     rad = allometric_radii(pos, par, prep.root_radii, prior.diameter_coefficient, levels=vectors.levels(par))
     rad = np.maximum(rad, 0.5 * prior.tip_radius)
     skeleton = Skeleton(pos, rad, par, branch_orders(par, rad))
