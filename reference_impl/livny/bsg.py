@@ -57,6 +57,7 @@ from reference_impl.common.radii import pipe_model_radii
 from reference_impl.common.roots import anchor_roots, find_roots, stem_radii
 from reference_impl.common.skeleton_ops import (
     branch_orders,
+    merge_close_forks,
     merge_siblings,
     prune_by_ratio,
     prune_short_tips,
@@ -100,6 +101,9 @@ class LivnyParams:
     min_twig_voxels: float = 3.0
     """Terminal twigs shorter than this many voxels hanging from a junction are noise: pruned with the ratio rule
     [S: below the cloud's resolution, the 0.02 ratio alone keeps such stubs near the tips]."""
+    merge_fork_voxels: float = 0.0
+    """Forks joined by a chain shorter than this many voxels become one fork, in each simplification round (a noisy
+    cloud splits one fork into several) [S]. 0: none."""
     sibling_angle_deg: float = 25.0
     """Merge siblings whose directions differ by less than this [A: cos > 0.9]."""
     sibling_length_ratio: float = 2.0
@@ -272,6 +276,8 @@ def _simplify(pos: np.ndarray, parents: np.ndarray, plant: np.ndarray, *, voxel:
         n_before = len(pos)
         keep = prune_by_ratio(pos, parents, params.prune_ratio)
         keep &= prune_short_tips(pos, parents, params.min_twig_voxels * voxel, rounds=1)
+        if params.merge_fork_voxels > 0:
+            keep &= merge_close_forks(pos, parents, params.merge_fork_voxels * voxel, rounds=1)
         parents, _ = remove_nodes(parents, keep)
         pos = pos[keep]
         w = subtree_lengths(pos, parents) + voxel

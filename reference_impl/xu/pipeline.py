@@ -22,7 +22,7 @@ from reference_impl.common.ground import Ground
 from reference_impl.common.inputs import plant_height, split_ground
 from reference_impl.common.radii import murray_angle, wbe_murray_radii
 from reference_impl.common.roots import anchor_roots, find_roots, stem_radii
-from reference_impl.common.skeleton_ops import branch_orders, hermite_smooth, prune_short_tips, remove_nodes
+from reference_impl.common.skeleton_ops import branch_orders, hermite_smooth, prune_short_tips, remove_nodes, simplify
 from reference_impl.xu.skeleton import bin_skeleton, probe_extend
 from reference_impl.xu.synthesis import (
     SynthesisResult,
@@ -69,6 +69,12 @@ class XuParams:
     """Largest gap bridged by probing at 20 m (Table I, section 4.2)."""
     probe_height_fraction: float = 2.0 / 3.0
     """Only nodes with shortest path below this fraction of the height probe (section 4.2)."""
+    prune_tip_bins: float = 0.0
+    """After smoothing, terminal branches (a fork to a tip) shorter than this many geodesic bins are removed, until
+    none is left (the paper removes twigs that support no leaf location, section 4.4; a twig this short is a split of
+    the bin clustering, not a branch) [S]. 0: none."""
+    merge_fork_bins: float = 0.0
+    """After smoothing, forks joined by a chain shorter than this many bins become one fork [S]. 0: none."""
     stem_gap_share: float = 0.5
     """When the probed skeleton spans less than this share of the height, a gap in the stem's scan stopped it: the
     probing is run again persistently (:func:`reference_impl.xu.skeleton.probe_extend`) [S]."""
@@ -271,6 +277,9 @@ def _prune_and_smooth(syn: SynthesisResult, locs: np.ndarray, *, d0: float, inte
     bare_tips = index[bare_tips]
     bare_pos = pos[bare_tips[bare_tips >= 0]]
     pos, par, _ = hermite_smooth(pos, par, min_angle_deg=params.hermite_min_angle_deg, min_spacing=width)
+    if params.prune_tip_bins > 0 or params.merge_fork_bins > 0:
+        pos, par, _, _ = simplify(pos, par, prune_tips=params.prune_tip_bins * width,
+                                  merge_forks=params.merge_fork_bins * width)
     return pos, par, bare_pos
 
 
