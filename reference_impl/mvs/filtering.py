@@ -122,7 +122,8 @@ def consistency_counts(
 
     Parameters
     ----------
-    depths : list of (h, w) float, z-depth maps, NaN (or inf) where unknown
+    depths : list of (h, w) float, z-depth maps, NaN (or -inf) where unknown, +inf where the view saw past the
+        scene (it counts as a surface farther than any point, for the free-space test only)
     cameras : one per depth map
     views : for each view, the other views to check against
     reproj_px, rel_depth : agreement thresholds (forward-backward reprojection error in pixels, relative depth)
@@ -139,6 +140,7 @@ def consistency_counts(
     if len(depths) != len(cameras):
         raise InputError("consistency_counts: one camera per depth map")
     clean = [np.where(np.isfinite(d), d, np.nan).astype(np.float64) for d in depths]
+    seen = [np.where(np.isposinf(d), np.inf, c) for d, c in zip(depths, clean, strict=True)]  # +inf: sees past
     world = thread_map(lambda dc: _backproject(*dc), list(zip(clean, cameras, strict=True)))
     slots = []  # per view, each pixel's row in world[j] (-1: no depth)
     for d, (_, idx) in zip(clean, world, strict=True):
@@ -160,7 +162,7 @@ def consistency_counts(
             # every pixel of j with a depth back-projected and projected into i, once per pair: the search of the
             # forward-backward test only reads these
             uvb, zb = cam.project(world[j][0])
-            _pair_counts(idx, u_i, v_i, zi, uv, np.round(uv).astype(np.int64), zj, clean[j].ravel(), slots[j],
+            _pair_counts(idx, u_i, v_i, zi, uv, np.round(uv).astype(np.int64), zj, seen[j].ravel(), slots[j],
                          uvb, zb, cj.width, cj.height, float(reproj_px), float(rel_depth), int(search_radius), sup,
                          vio)
         return sup.reshape(h, w), vio.reshape(h, w)

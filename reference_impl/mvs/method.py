@@ -131,8 +131,12 @@ def filter_depth_maps(
     p = params or MVSParams()
     f = p.filter
     raw = [m.depth for m in maps]
+    # a pixel that saw the background past the scene sees through whatever lies in front of it: +inf for the
+    # free-space test (no depth for the agreement test)
+    seen = [d if m.background is None else np.where(m.background, np.inf, d).astype(np.float32)
+            for d, m in zip(raw, maps, strict=True)]
     support, violations = consistency_counts(
-        raw, cameras, views=nearest_views(cameras, f.consistency_views), reproj_px=f.reproj_px, rel_depth=f.rel_depth,
+        seen, cameras, views=nearest_views(cameras, f.consistency_views), reproj_px=f.reproj_px, rel_depth=f.rel_depth,
         search_radius=f.search_radius,
     )
     def one(i: int) -> tuple[np.ndarray, np.ndarray]:

@@ -99,6 +99,11 @@ class DepthParams:
     """Pixels whose reference window has a grey-level standard deviation below this are not matched."""
     depth_margin: float = 1.25
     """Scene radius used for the depth range = margin x (distance to the scene centre) x tan(half field of view)."""
+    background_span: float = 0.0
+    """Depths beyond the scene are searched too, over this fraction of the scene's inverse-depth span beyond its
+    far end (with ``hypotheses`` raised in proportion, so the scene keeps its plane spacing), and a pixel whose best
+    depth lies there is background, not kept: without them a pixel that sees the ground far behind the plant takes
+    the cheapest depth inside the scene, and such wrong depths agree across neighbouring views [S]. 0: off."""
 
 
 @dataclass(frozen=True)

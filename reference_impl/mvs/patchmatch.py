@@ -56,12 +56,16 @@ class DepthMap:
     cost : (h, w) float32, final matching cost (1 - ZNCC, mean of the best sources), 2 where unmatched
     planes : the raw planes of every pixel, kept or not: (h, w) float32 depth and (h, w, 3) float32 camera-frame
         normal (what the geometric-consistency pass starts from and checks against); None for the sweep alone
+    background : (h, w) bool, pixels that matched well beyond the scene (:attr:`DepthParams.background_span`): the
+        view sees past the scene there, which the free-space test counts against any point in front; None when the
+        search stops at the scene
     """
 
     depth: np.ndarray
     normal: np.ndarray
     cost: np.ndarray
     planes: tuple[np.ndarray, np.ndarray] | None = None
+    background: np.ndarray | None = None
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
@@ -742,8 +746,9 @@ def estimate_depth(
     if ref.shape != (ref_cam.height, ref_cam.width):
         raise InputError(f"reference image is {ref.shape[::-1]}, its camera says {(ref_cam.width, ref_cam.height)}")
     srcs = [to_gray(s) for s in src_images]
-    near, far = float(depth_range[0]), float(depth_range[1])
-    depths = sweep_depths(near, far, p.hypotheses)
+    keep_near, keep_far = float(depth_range[0]), float(depth_range[1])
+    near, far, hypotheses = search_range(keep_near, keep_far, p)
+    depths = sweep_depths(near, far, hypotheses)
     textured, coarse, max_cost = _level(ref, p)
     if coarse:
         depth, cost, normal_cam = _coarse_planes(ref, srcs, ref_cam, src_cams, depths, (near, far), p, rng=rng,
@@ -761,8 +766,10 @@ def estimate_depth(
     elif not refine:
         normal_cam = np.zeros(depth.shape + (3,), np.float32)
         normal_cam[..., 2] = -1.0
-    keep = _kept(depth, cost, max_cost, textured, near, far)
-    return _depth_map(depth, normal_cam, cost, keep, ref_cam, planes=(depth, normal_cam) if refine else None)
+    keep = _kept(depth, cost, max_cost, textured, keep_near, keep_far)
+    background = _background(depth, cost, max_cost, textured, keep_far) if far > keep_far else None
+    return _depth_map(depth, normal_cam, cost, keep, ref_cam, planes=(depth, normal_cam) if refine else None,
+                      background=background)
 
 
 def refine_geometric(
@@ -787,7 +794,8 @@ def refine_geometric(
         raise InputError("the geometric-consistency pass needs the photometric pass's planes (refine=True)")
     ref = to_gray(ref_image)
     srcs = [to_gray(s) for s in src_images]
-    near, far = float(depth_range[0]), float(depth_range[1])
+    keep_near, keep_far = float(depth_range[0]), float(depth_range[1])
+    near, far, _ = search_range(keep_near, keep_far, p)
     textured, coarse, max_cost = _level(ref, p)
     eng = _Engine(ref, srcs, ref_cam, src_cams, p, checker=coarse and p.coarse_checker)
     eng.set_geometry(src_depths)
@@ -796,8 +804,20 @@ def refine_geometric(
                                           iterations=p.geometric_iterations,
                                           random_depth=coarse and p.fine_random_depth)
     cost = eng.photometric_cost(depth, normal_cam)
-    return _depth_map(depth, normal_cam, cost, _kept(depth, cost, max_cost, textured, near, far), ref_cam,
-                      planes=(depth, normal_cam))
+    return _depth_map(depth, normal_cam, cost, _kept(depth, cost, max_cost, textured, keep_near, keep_far),
+                      ref_cam, planes=(depth, normal_cam),
+                      background=_background(depth, cost, max_cost, textured, keep_far) if far > keep_far else None)
+
+
+def search_range(near: float, far: float, p: DepthParams) -> tuple[float, float, int]:
+    """The depths searched for a scene between ``near`` and ``far`` (:attr:`DepthParams.background_span`): (near,
+    the far end moved back by that fraction of the inverse-depth span, the plane count raised in proportion)."""
+    if not p.background_span > 0:
+        return near, far, p.hypotheses
+    inv_far = 1.0 / far - p.background_span * (1.0 / near - 1.0 / far)
+    inv_far = max(inv_far, 0.01 / far)  # (a finite far end: 100 x the scene's)
+    span = (1.0 / near - inv_far) / (1.0 / near - 1.0 / far)
+    return near, 1.0 / inv_far, int(np.ceil(p.hypotheses * span))
 
 
 def _level(ref: np.ndarray, p: DepthParams) -> tuple[np.ndarray, bool, float]:
@@ -812,6 +832,12 @@ def _kept(depth: np.ndarray, cost: np.ndarray, max_cost: float, textured: np.nda
           ) -> np.ndarray:
     """The pixels that keep their depth: cheap enough, textured, and inside (near, far)."""
     return (cost < max_cost) & textured & np.isfinite(depth) & (depth > near) & (depth < far)
+
+
+def _background(depth: np.ndarray, cost: np.ndarray, max_cost: float, textured: np.ndarray, far: float
+                ) -> np.ndarray:
+    """The pixels that matched as well as a kept one but beyond the scene's far end: background seen past it."""
+    return (cost < max_cost) & textured & np.isfinite(depth) & (depth >= far)
 
 
 def _check_depth_inputs(src_images: list[np.ndarray], src_cams: list[Camera], p: DepthParams) -> None:
@@ -853,9 +879,9 @@ def _coarse_planes(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src
 
 
 def _depth_map(depth: np.ndarray, normal_cam: np.ndarray, cost: np.ndarray, keep: np.ndarray, ref_cam: Camera,
-               planes: tuple[np.ndarray, np.ndarray] | None = None) -> DepthMap:
+               planes: tuple[np.ndarray, np.ndarray] | None = None, background: np.ndarray | None = None) -> DepthMap:
     """The DepthMap of the kept pixels: NaN depth and normal elsewhere, normals turned into world coordinates."""
     depth = np.where(keep, depth, np.nan).astype(np.float32)
     normal = (normal_cam.reshape(-1, 3) @ ref_cam.R).reshape(normal_cam.shape)  # camera -> world: R^T n
     normal = np.where(keep[..., None], normal, np.nan).astype(np.float32)
-    return DepthMap(depth, normal, np.where(np.isfinite(cost), cost, 2.0).astype(np.float32), planes)
+    return DepthMap(depth, normal, np.where(np.isfinite(cost), cost, 2.0).astype(np.float32), planes, background)

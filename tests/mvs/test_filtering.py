@@ -177,3 +177,35 @@ def test_consistency_counts_match_the_naive_definition(rng, radius):
         np.testing.assert_array_equal(sup[i], ref_sup[i])
         np.testing.assert_array_equal(vio[i], ref_vio[i])
     assert sum(s.sum() for s in sup) > 100 and sum(v.sum() for v in vio) > 20  # both tests had work to do
+
+
+def test_a_view_that_sees_past_the_scene_counts_against_points_in_front(rng):
+    """+inf (background: the view matched beyond the scene) is a free-space violation for every point in front of
+    it, and no agreement: the plane seen by view 0 gets a violation from each view that saw past it there, none
+    where that view has no depth (NaN)."""
+    cams = [look_at((3 * np.cos(a), 3 * np.sin(a), 2.5), (0, 0, 0), fov_x_deg=50, width=64, height=64)
+            for a in np.radians([0, 20, -20])]
+    depths = [_plane_depth(c) for c in cams]
+    base_sup, base_vio = consistency_counts(depths, cams, views=[[1, 2], [0], [0]], reproj_px=1.0, rel_depth=0.01)
+    depths[1] = np.full_like(depths[1], np.inf)  # view 1 saw past everything
+    depths[2] = np.full_like(depths[2], np.nan)  # view 2 saw nothing
+    sup, vio = consistency_counts(depths, cams, views=[[1, 2], [0], [0]], reproj_px=1.0, rel_depth=0.01)
+    seen = np.isfinite(depths[0])
+    assert np.all(sup[0][seen] == 0)  # neither view agrees
+    centre = np.zeros_like(seen)
+    centre[16:48, 16:48] = True
+    assert np.all(vio[0][seen & centre] == 1) and np.all(base_vio[0][seen & centre] == 0)
+    assert np.mean(base_sup[0][seen & centre] >= 1) > 0.99
+
+
+def test_search_range_adds_background_planes_at_the_scene_spacing():
+    from reference_impl.mvs.params import DepthParams
+    from reference_impl.mvs.patchmatch import search_range, sweep_depths
+
+    p = DepthParams(hypotheses=100, background_span=0.25)
+    near, far, n = search_range(4.0, 12.0, p)
+    assert near == 4.0 and n in (125, 126) and far == pytest.approx(24.0)  # 1/far = 1/12 - 0.25 (1/4 - 1/12)
+    inv = 1 / sweep_depths(near, far, n)  # the scene's planes keep their inverse-depth spacing
+    assert np.diff(inv).mean() == pytest.approx((1 / 4 - 1 / 12) / 99, rel=0.02)
+    assert search_range(4.0, 12.0, DepthParams(hypotheses=100)) == (4.0, 12.0, 100)
+    assert search_range(4.0, 5.0, DepthParams(background_span=100.0))[1] == pytest.approx(500.0)  # finite: 100 x far
