@@ -138,13 +138,17 @@ class GuoParams:
     """Shedding threshold as a fraction of the species' one-internode twig radius [S]."""
     shed_age: int = 3
     """Cycles without growth before a thin branch is shed [S, Palubicki's shedding delay]."""
-    prune_tips: float = 0.0
-    """After growth, terminal branches (a fork to a tip) shorter than this many internode lengths are shed, until
-    none is left (the shedding of section 6.2 applied once the crown is grown: a shoot that grew this little toward
-    the cloud is a twig the cloud's noise lit) [S]. 0: none."""
-    merge_forks: float = 0.0
+    prune_tips: float = 8.0
+    """After growth, terminal branches (a fork to a tip) shorter than this many internode lengths, and than
+    ``prune_cap`` x the plant's height, are shed until none is left (the shedding of section 6.2 applied once the
+    crown is grown: a shoot that grew this little toward the cloud is a twig the cloud's noise lit) [S: measured,
+    docs/tuning/guo.md]. 0: none."""
+    prune_cap: float = 0.05
+    """``prune_tips``'s length is at most this fraction of the plant's height: the species' internode is a large
+    share of a small shrub, where a few internodes are a real twig [S]."""
+    merge_forks: float = 2.0
     """After growth, two forks joined by a chain shorter than this many internode lengths become one fork (laterals
-    that broke from neighbouring metamers) [S]. 0: none."""
+    that broke from neighbouring metamers) [S: docs/tuning/guo.md]. 0: none."""
     collapse_angle: float = 10.0
     """Branch collapse: a degree-2 node whose edges turn by less than this (degrees) ... [S: no value in the paper]."""
     collapse_radius: float = 0.1

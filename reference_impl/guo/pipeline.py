@@ -385,7 +385,8 @@ def model(prep: Prepared, prior: SpeciesPrior, params: GuoParams, rng: np.random
 
     gpos, gpar, grad, glat = g.positions, g.parents, g.radii, g.lateral
     if params.prune_tips > 0 or params.merge_forks > 0:  # the crown grown, its spurious forks and twigs shed
-        gpos, gpar, grad, kept = simplify(gpos, gpar, grad, prune_tips=params.prune_tips * ell,
+        gpos, gpar, grad, kept = simplify(gpos, gpar, grad,
+                                          prune_tips=min(params.prune_tips * ell, params.prune_cap * prep.height),
                                           merge_forks=params.merge_forks * ell)
         glat = glat[kept]
     t0 = time.perf_counter()

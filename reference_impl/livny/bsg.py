@@ -101,9 +101,9 @@ class LivnyParams:
     min_twig_voxels: float = 3.0
     """Terminal twigs shorter than this many voxels hanging from a junction are noise: pruned with the ratio rule
     [S: below the cloud's resolution, the 0.02 ratio alone keeps such stubs near the tips]."""
-    merge_fork_voxels: float = 0.0
+    merge_fork_voxels: float = 2.0
     """Forks joined by a chain shorter than this many voxels become one fork, in each simplification round (a noisy
-    cloud splits one fork into several) [S]. 0: none."""
+    cloud splits one fork into several) [S: measured, docs/tuning/xu.md]. 0: none."""
     sibling_angle_deg: float = 25.0
     """Merge siblings whose directions differ by less than this [A: cos > 0.9]."""
     sibling_length_ratio: float = 2.0

@@ -69,11 +69,11 @@ class XuParams:
     """Largest gap bridged by probing at 20 m (Table I, section 4.2)."""
     probe_height_fraction: float = 2.0 / 3.0
     """Only nodes with shortest path below this fraction of the height probe (section 4.2)."""
-    prune_tip_bins: float = 0.0
+    prune_tip_bins: float = 3.0
     """After smoothing, terminal branches (a fork to a tip) shorter than this many geodesic bins are removed, until
     none is left (the paper removes twigs that support no leaf location, section 4.4; a twig this short is a split of
-    the bin clustering, not a branch) [S]. 0: none."""
-    merge_fork_bins: float = 0.0
+    the bin clustering, not a branch) [S: measured, docs/tuning/xu.md]. 0: none."""
+    merge_fork_bins: float = 1.0
     """After smoothing, forks joined by a chain shorter than this many bins become one fork [S]. 0: none."""
     stem_gap_share: float = 0.5
     """When the probed skeleton spans less than this share of the height, a gap in the stem's scan stopped it: the
