@@ -116,6 +116,10 @@ class GuoParams:
     """Without a species prior, every density peak above this fraction of the highest one is a root [S]."""
     trunk_fit_height: float = 0.06
     """The cross-section fit uses the points between 1 % and this fraction of the height above the root [S]."""
+    breast_height_fit: bool = True
+    """Scale every radius so the stem's radius 1.3 m above the base matches a circle fitted to the cloud there, on
+    plants taller than 3 m whose stem shows bark at breast height (:func:`reference_impl.common.roots.
+    breast_height_scale`): the base fit takes in the root flare and the allometric taper overshoots the DBH [S]."""
 
     # --- occluded crowns (Fig. 8)
     hull_fill: str = "auto"

@@ -54,7 +54,8 @@ from reference_impl.common.ground import Ground
 from reference_impl.common.inputs import plant_height, split_ground
 from reference_impl.common.leaves import foliage_cells, sample_edges, skeleton_distance
 from reference_impl.common.radii import pipe_model_radii
-from reference_impl.common.roots import anchor_roots, find_roots, stem_radii
+from reference_impl.common.roots import (anchor_roots, breast_height_scale, find_roots, refuse_implausible_radii,
+                                         stem_radii)
 from reference_impl.common.skeleton_ops import (
     branch_orders,
     merge_close_forks,
@@ -112,6 +113,10 @@ class LivnyParams:
     """Pipe model: r proportional to supported length^exponent [L, standard pipe model]."""
     trunk_fit_fraction: float = 0.05
     """Trunk cylinder fitted to the cloud over this fraction of the height above the root [S]."""
+    breast_height_fit: bool = True
+    """Scale every radius so the stem's radius 1.3 m above the base matches a circle fitted to the cloud there, on
+    plants taller than 3 m whose stem shows bark at breast height (:func:`reference_impl.common.roots.
+    breast_height_scale`): the base fit takes in the root flare and the allometric taper overshoots the DBH [S]."""
     min_radius_fraction: float = 0.0005
     """Smallest radius, fraction of the plant height (0.5 mm on a 1 m plant) [S]."""
     leaf_length_fraction: float = 0.025
@@ -338,6 +343,9 @@ def reconstruct_livny(points: np.ndarray, rng: np.random.Generator, params: Livn
     _, _, rr, radii = _pipe_radii(pos, parents, plant, voxel=voxel, height=height, params=params)
     gz = pos[:, 0] * ground.coef[0] + pos[:, 1] * ground.coef[1] + ground.coef[2]
     pos, parents, radii, _ = anchor_roots(pos, parents, radii, gz, min_gap=0.25 * voxel)
+    if params.breast_height_fit:
+        radii = radii * breast_height_scale(plant, pos, parents, radii)
+    refuse_implausible_radii(radii, height, "livny")
     skeleton = Skeleton(pos, np.maximum(radii, params.min_radius_fraction * height), parents,
                         branch_orders(parents, radii))
 

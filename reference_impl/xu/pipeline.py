@@ -21,7 +21,8 @@ from reference_impl.common.graph import children_csr, median_spacing, radius_gra
 from reference_impl.common.ground import Ground
 from reference_impl.common.inputs import plant_height, split_ground
 from reference_impl.common.radii import murray_angle, wbe_murray_radii
-from reference_impl.common.roots import anchor_roots, find_roots, stem_radii
+from reference_impl.common.roots import (anchor_roots, breast_height_scale, find_roots, refuse_implausible_radii,
+                                         stem_radii)
 from reference_impl.common.skeleton_ops import branch_orders, hermite_smooth, prune_short_tips, remove_nodes, simplify
 from reference_impl.xu.skeleton import bin_skeleton, probe_extend
 from reference_impl.xu.synthesis import (
@@ -110,6 +111,10 @@ class XuParams:
     """The split point moves at most this fraction of the adjacent parent edges [S: "closer to", not onto]."""
     trunk_fit_fraction: float = 0.05
     """Base radius fitted to the cloud over this fraction of the height (section 5.2: from the scan) [S]."""
+    breast_height_fit: bool = True
+    """Scale every radius so the stem's radius 1.3 m above the base matches a circle fitted to the cloud there, on
+    plants taller than 3 m whose stem shows bark at breast height (:func:`reference_impl.common.roots.
+    breast_height_scale`): the base fit takes in the root flare and the allometric taper overshoots the DBH [S]."""
     min_radius_fraction: float = 0.0005
     """Smallest radius, fraction of the height [S]."""
     leaf_bins: int = 4
@@ -307,6 +312,9 @@ def _radii_and_angles(pos: np.ndarray, par: np.ndarray, plant: np.ndarray, groun
                                                  shift_limit=params.angle_shift_limit)
     gz = pos[:, 0] * ground.coef[0] + pos[:, 1] * ground.coef[1] + ground.coef[2]
     pos, par, radii, _ = anchor_roots(pos, par, radii, gz, min_gap=0.25 * radius)
+    if params.breast_height_fit:
+        radii = radii * breast_height_scale(plant, pos, par, radii)
+    refuse_implausible_radii(radii, height, "xu")
     return Skeleton(pos, np.maximum(radii, min_r), par, branch_orders(par, radii)), rr, nadj
 
 

@@ -123,3 +123,46 @@ def test_stem_radius_from_a_point_on_the_bark_of_a_thick_trunk(rng):
     radii = stem_radii(pts, roots, np.tile(up, (5, 1)), offset=0.0, length=0.5, max_radius=1.1, fallback=0.05,
                        min_radius=0.001)
     np.testing.assert_allclose(radii, 0.02, atol=0.003)
+
+
+def _tapering_stem(rng, height, r_of_z, n=20000, arc=2 * np.pi):
+    """Points on the bark of a vertical stem whose radius at height z is r_of_z(z), over ``arc`` of its directions
+    (a one-station scan sees half), plus a skeleton along its axis."""
+    z = rng.uniform(0, height, n)
+    a = rng.uniform(0, arc, n)
+    r = r_of_z(z)
+    pts = np.c_[r * np.cos(a), r * np.sin(a), z] + rng.normal(0, 0.001, (n, 3))
+    pos = np.c_[np.zeros(21), np.zeros(21), np.linspace(0, height, 21)]
+    return pts, pos, np.r_[-1, np.arange(20)]
+
+
+@pytest.mark.parametrize("arc", [2 * np.pi, np.pi])
+def test_breast_height_scale_brings_the_stem_to_the_bark(rng, arc):
+    from reference_impl.common.roots import breast_height_scale
+
+    pts, pos, par = _tapering_stem(rng, 6.0, lambda z: 0.10 - 0.01 * z, arc=arc)  # bark radius 8.7 cm at 1.3 m
+    model = 0.2 - 0.02 * pos[:, 2]  # a model twice too thick everywhere (a flare-anchored base, a slow taper)
+    scale = breast_height_scale(pts, pos, par, model)
+    assert scale * (0.2 - 0.02 * 1.3) == pytest.approx(0.10 - 0.013, rel=0.05)
+
+
+def test_breast_height_scale_leaves_shrubs_and_missing_stems_alone(rng):
+    from reference_impl.common.roots import breast_height_scale
+
+    pts, pos, par = _tapering_stem(rng, 2.5, lambda z: 0.03 + 0 * z)  # shorter than 3 m: breast height is crown
+    assert breast_height_scale(pts, pos, par, np.full(len(pos), 0.06)) == 1.0
+    pts, pos, par = _tapering_stem(rng, 6.0, lambda z: 0.05 + 0 * z)
+    blob = rng.normal(0, 0.3, (20000, 3)) + [0, 0, 1.3]  # foliage at breast height: no bark ring to fit
+    far = pts[np.abs(pts[:, 2] - 1.3) > 0.5]
+    assert breast_height_scale(np.r_[far, blob], pos, par, np.full(len(pos), 0.1)) == 1.0
+
+
+def test_implausible_radii_are_refused():
+    from plantbench.errors import PlantbenchError
+    from reference_impl.common.roots import refuse_implausible_radii
+
+    refuse_implausible_radii(np.array([0.01, 0.4]), 1.0, "m")  # 0.4 of the height: a wide bole, allowed
+    with pytest.raises(PlantbenchError, match="m: a branch radius of 0.6"):
+        refuse_implausible_radii(np.array([0.01, 0.6]), 1.0, "m")
+    with pytest.raises(PlantbenchError):
+        refuse_implausible_radii(np.array([np.nan]), 1.0, "m")
