@@ -33,11 +33,12 @@ def _console():
 
 
 def _progress_bar(console):
-    """The progress bar of a long command: description, bar, done/total, elapsed time."""
+    """The progress bar of a long command: description, bar, done/total, elapsed time; on a terminal only (into a
+    pipe or a file nothing, so a log holds the plain summary and no bar characters)."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                    console=console)
+                    console=console, disable=not console.is_terminal)
 
 
 def _emit(table) -> None:

@@ -93,3 +93,23 @@ def test_capture_flags_are_the_capture_settings(tmp_path):
     bad = plantbench("capture", str(tmp_path / "case"), "--views", "0")
     assert bad.returncode == 2 and "views" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
     assert not any((tmp_path / "case").iterdir())
+
+
+def test_progress_bar_only_on_a_terminal():
+    """Into a pipe or a file the progress bar prints nothing (no bar characters in a log); on a terminal it draws."""
+    import io
+
+    from rich.console import Console
+
+    from plantbench.cli import _progress_bar
+
+    def drawn(terminal: bool) -> str:
+        buf = io.StringIO()
+        console = Console(file=buf, force_terminal=terminal, width=80)
+        with _progress_bar(console) as bar:
+            task = bar.add_task("suite quick", total=3)
+            bar.advance(task, 3)
+        return buf.getvalue()
+
+    assert drawn(False) == ""
+    assert "━" in drawn(True) and "3/3" in drawn(True)
