@@ -33,12 +33,34 @@ def _console():
 
 
 def _progress_bar(console):
-    """The progress bar of a long command: description, bar, done/total, elapsed time; on a terminal only (into a
-    pipe or a file nothing, so a log holds the plain summary and no bar characters)."""
+    """The progress bar of a long command: description, bar, done/total, elapsed time, drawn on a terminal; into a
+    pipe or a file, a plain line at every tenth of the work instead (a log holds no bar characters)."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                    console=console, disable=not console.is_terminal)
+    class _Progress(Progress):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self._logged: dict = {}
+
+        def update(self, task_id, **kwargs):
+            super().update(task_id, **kwargs)
+            task = self._tasks[task_id]
+            if self.disable and task.total:
+                tenth = int(10 * task.completed / task.total)
+                if tenth > self._logged.get(task_id, 0):
+                    self._logged[task_id] = tenth
+                    self.console.print(f"{task.description}: {task.completed:.0f}/{task.total:.0f}, "
+                                       f"{task.elapsed or 0:.0f} s", markup=False, highlight=False)
+
+        def advance(self, task_id, advance=1):
+            self.update(task_id, advance=advance)
+
+        def reset(self, task_id, **kwargs):
+            super().reset(task_id, **kwargs)
+            self._logged.pop(task_id, None)
+
+    return _Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                     console=console, disable=not console.is_terminal)
 
 
 def _emit(table) -> None:
