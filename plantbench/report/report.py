@@ -418,6 +418,13 @@ def provenance(run_dir: Path) -> str:
     data = meta.get("dataset")
     if data:
         return f"Inputs: frozen dataset, manifest sha256 {data['manifest_sha256']}; methods run with {code}."
+    cases = (meta.get("config") or {}).get("cases") or []
+    imported = sum(1 for c in cases if c.get("scan") or c.get("path"))
+    if imported:
+        made = len(cases) - imported
+        also = f"; {made} case entries generated and captured by this run" if made else ""
+        return (f"Inputs: {imported} real captures imported (scan files or case folders, keyed by their sha256){also} "
+                f"({code}).")
     return f"Inputs: generated and captured by this run ({code})."
 
 
