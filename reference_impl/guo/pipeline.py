@@ -38,8 +38,8 @@ from reference_impl.common.geometry import branch_mesh
 from reference_impl.common.graph import median_spacing, voxel_downsample
 from reference_impl.common.ground import Ground
 from reference_impl.common.inputs import plant_height, split_ground
-from reference_impl.common.skeleton_ops import branch_orders, simplify
 from reference_impl.common.roots import breast_height_scale, refuse_implausible_radii
+from reference_impl.common.skeleton_ops import branch_orders, simplify
 from reference_impl.guo.growth import allometric_radii, grow
 from reference_impl.guo.hull import crown_mask, poisson_disk_in_hull, shell_ratio
 from reference_impl.guo.leaves import LeafConfig, PlacedLeaves, place_leaves

@@ -54,8 +54,13 @@ from reference_impl.common.ground import Ground
 from reference_impl.common.inputs import plant_height, split_ground
 from reference_impl.common.leaves import foliage_cells, sample_edges, skeleton_distance
 from reference_impl.common.radii import pipe_model_radii
-from reference_impl.common.roots import (anchor_roots, breast_height_scale, find_roots, refuse_implausible_radii,
-                                         stem_radii)
+from reference_impl.common.roots import (
+    anchor_roots,
+    breast_height_scale,
+    find_roots,
+    refuse_implausible_radii,
+    stem_radii,
+)
 from reference_impl.common.skeleton_ops import (
     branch_orders,
     merge_close_forks,

@@ -21,8 +21,13 @@ from reference_impl.common.graph import children_csr, median_spacing, radius_gra
 from reference_impl.common.ground import Ground
 from reference_impl.common.inputs import plant_height, split_ground
 from reference_impl.common.radii import murray_angle, wbe_murray_radii
-from reference_impl.common.roots import (anchor_roots, breast_height_scale, find_roots, refuse_implausible_radii,
-                                         stem_radii)
+from reference_impl.common.roots import (
+    anchor_roots,
+    breast_height_scale,
+    find_roots,
+    refuse_implausible_radii,
+    stem_radii,
+)
 from reference_impl.common.skeleton_ops import branch_orders, hermite_smooth, prune_short_tips, remove_nodes, simplify
 from reference_impl.xu.skeleton import bin_skeleton, probe_extend
 from reference_impl.xu.synthesis import (
