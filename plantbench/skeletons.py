@@ -6,7 +6,7 @@ import numpy as np
 
 from plantbench.plant import Skeleton
 
-__all__ = ["children_lists", "branch_chains", "chain_lengths", "topological_order"]
+__all__ = ["children_lists", "branch_chains", "chain_lengths", "topological_order", "stem_at_height"]
 
 
 def children_lists(skeleton: Skeleton) -> list[np.ndarray]:
@@ -17,6 +17,26 @@ def children_lists(skeleton: Skeleton) -> list[np.ndarray]:
     order = idx[np.argsort(par[idx], kind="stable")]
     counts = np.bincount(par[idx], minlength=n)
     return np.split(order, np.cumsum(counts)[:-1]) if n else []
+
+
+def stem_at_height(skeleton: Skeleton, z: float) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """Where the stem crosses height ``z``: (point, unit direction of that edge, radius interpolated there), or None
+    when it does not reach ``z``. The stem starts at the thickest root and follows the thickest child."""
+    if len(skeleton) == 0:
+        return None
+    pos, rad = skeleton.positions, skeleton.radii
+    kids = children_lists(skeleton)
+    roots = skeleton.roots
+    node = int(roots[np.argmax(rad[roots])])
+    while len(kids[node]):
+        nxt = int(kids[node][np.argmax(rad[kids[node]])])
+        a, b = pos[node], pos[nxt]
+        if (a[2] - z) * (b[2] - z) <= 0 and a[2] != b[2]:
+            f = (z - a[2]) / (b[2] - a[2])
+            d = b - a
+            return a + f * d, d / np.linalg.norm(d), float(rad[node] + f * (rad[nxt] - rad[node]))
+        node = nxt
+    return None
 
 
 def topological_order(skeleton: Skeleton) -> np.ndarray:

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from plantbench.plant import Skeleton, check_shape
-from plantbench.skeletons import branch_chains, children_lists
+from plantbench.skeletons import branch_chains, stem_at_height
 
 __all__ = ["THRESHOLDS", "HEIGHT_FRACTIONS", "STRUCTURE_FRACTION", "SkeletonSamples", "skeleton_samples", "sample_skeleton",
            "sample_weights", "skeleton_prf", "skeleton_attributes", "dbh", "skeleton_support", "crown_area"]
@@ -320,20 +320,8 @@ def dbh(skeleton: Skeleton, *, breast_height: float = 1.3) -> float | None:
     """Trunk diameter (m) at ``breast_height`` above the lowest node; None if the trunk does not reach it."""
     if len(skeleton) == 0:
         return None
-    pos, rad = skeleton.positions, skeleton.radii
-    z0 = float(pos[:, 2].min())
-    kids = children_lists(skeleton)
-    roots = skeleton.roots
-    node = int(roots[np.argmax(rad[roots])])
-    target = z0 + breast_height
-    while len(kids[node]):
-        nxt = int(kids[node][np.argmax(rad[kids[node]])])
-        za, zb = pos[node, 2], pos[nxt, 2]
-        if (za - target) * (zb - target) <= 0 and za != zb:
-            f = (target - za) / (zb - za)
-            return float(2 * (rad[node] + f * (rad[nxt] - rad[node])))
-        node = nxt
-    return None
+    at = stem_at_height(skeleton, float(skeleton.positions[:, 2].min()) + breast_height)
+    return None if at is None else 2 * at[2]
 
 
 def skeleton_attributes(skeleton: Skeleton, *, breast_height: float = 1.3) -> dict[str, float | None]:

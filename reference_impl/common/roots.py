@@ -18,7 +18,10 @@ import scipy.sparse as sp
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
+from plantbench.errors import PlantbenchError
 from plantbench.geometry.vectors import perpendicular
+from plantbench.plant import Skeleton
+from plantbench.skeletons import stem_at_height
 from reference_impl.common.radii import fit_trunk_radius
 
 __all__ = ["plant_groups", "find_roots", "stem_radius", "stem_radii", "half_gaps", "anchor_roots",
@@ -232,27 +235,6 @@ def anchor_roots(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, 
             np.concatenate([radii[lift], radii]), index)
 
 
-def _stem_at(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, z: float
-             ) -> tuple[np.ndarray, np.ndarray, float] | None:
-    """Where the stem (from the thickest root, always the thickest child) crosses height ``z``: (point, unit
-    direction of that edge, radius interpolated there), or None when it does not reach ``z``."""
-    kids: list[list[int]] = [[] for _ in range(len(parents))]
-    for v, p in enumerate(np.asarray(parents).tolist()):
-        if p >= 0:
-            kids[p].append(v)
-    roots = np.flatnonzero(parents < 0)
-    node = int(roots[np.argmax(radii[roots])])
-    while kids[node]:
-        nxt = max(kids[node], key=lambda k: radii[k])
-        a, b = positions[node], positions[nxt]
-        if (a[2] - z) * (b[2] - z) <= 0 and a[2] != b[2]:
-            f = (z - a[2]) / (b[2] - a[2])
-            d = b - a
-            return a + f * d, d / np.linalg.norm(d), float(radii[node] + f * (radii[nxt] - radii[node]))
-        node = nxt
-    return None
-
-
 def breast_height_scale(points: np.ndarray, positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, *,
                         breast_height: float = 1.3, slab: float = 0.3, min_height: float = 3.0,
                         min_sectors: float = 0.4) -> float:
@@ -269,7 +251,7 @@ def breast_height_scale(points: np.ndarray, positions: np.ndarray, parents: np.n
     z0 = float(positions[:, 2].min())
     if float(positions[:, 2].max()) - z0 < min_height:
         return 1.0
-    at = _stem_at(positions, parents, radii, z0 + breast_height)
+    at = stem_at_height(Skeleton(positions, radii, parents), z0 + breast_height)
     if at is None:
         return 1.0
     centre, direction, r_model = at
@@ -288,8 +270,6 @@ def breast_height_scale(points: np.ndarray, positions: np.ndarray, parents: np.n
 def refuse_implausible_radii(radii: np.ndarray, height: float, method: str) -> None:
     """Raise when a radius is one no tree has: above half the plant's height (a trunk as wide as the tree is tall
     means the radius model ran away), naming the method and the radius."""
-    from plantbench.errors import PlantbenchError
-
     r = float(np.max(radii)) if len(radii) else 0.0
     if not np.isfinite(r) or r > 0.5 * height:
         raise PlantbenchError(f"{method}: a branch radius of {r:.3g} m on a plant {height:.3g} m tall; no tree has a "
