@@ -57,7 +57,8 @@ def find_roots(positions: np.ndarray, heights: np.ndarray, graph: sp.csr_matrix,
     component is central, the root is the plant's lowest vertex within that central radius (the occluded stem's
     lowest visible part), else its lowest vertex.
     """
-    groups = plant_groups(positions, group_cell)
+    groups = _join_stem_bases(positions, heights, plant_groups(positions, group_cell), min_group_fraction,
+                              central_fraction)
     sizes = np.bincount(groups)
     roots: list[int] = []
     for gid in np.flatnonzero(sizes >= min_group_fraction * len(positions)):
@@ -68,6 +69,29 @@ def find_roots(positions: np.ndarray, heights: np.ndarray, graph: sp.csr_matrix,
     if not roots:
         roots = [int(np.argmin(heights))]
     return np.asarray(sorted(roots)[:max_roots], np.int64)
+
+
+def _join_stem_bases(positions: np.ndarray, heights: np.ndarray, groups: np.ndarray, min_group_fraction: float,
+                     central_fraction: float) -> np.ndarray:
+    """``groups`` with each small group (under ``min_group_fraction`` of the vertices) that lies lower than a plant
+    group and within ``central_fraction`` of its crown radius of its centre joined to that plant: a stem base cut off
+    from its crown by a gap in the scan (an occluded or unscanned stretch of the trunk) [S: AdTree's tree13 has no
+    points between about 1 and 2 m, and its crown alone would be rooted at 2 m]."""
+    sizes = np.bincount(groups)
+    big = np.flatnonzero(sizes >= min_group_fraction * len(positions))
+    out = groups.copy()
+    for gid in big:
+        members = groups == gid
+        centre = np.median(positions[members, :2], axis=0)
+        hdist = np.hypot(*(positions[members, :2] - centre).T)
+        central = central_fraction * max(float(np.percentile(hdist, 90)), 1e-12)
+        low = float(heights[members].min())
+        for small in np.flatnonzero(sizes < min_group_fraction * len(positions)):
+            sm = groups == small
+            if (heights[sm].min() < low and heights[sm].max() <= low
+                    and np.hypot(*(positions[sm, :2].mean(0) - centre)) <= central):
+                out[sm] = gid
+    return out
 
 
 def _roots_of_plant(positions, heights, graph, slab, min_fraction, central_fraction) -> list[int]:

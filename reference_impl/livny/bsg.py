@@ -5,15 +5,17 @@ re-implementation, [A] AdTree, [S] our choice; every length is scaled by the pla
 
 1. ground removal (reference_impl.common.ground) [S]; voxel downsampling at 0.75 % of the plant height [S, within
    0.5-1 % of the height; docs/tuning/guo.md], coarsened only when more than 150k voxels remain (speed) [S];
-2. symmetrised 10-NN graph without edges longer than 3 x the median 1-NN spacing, components bridged by their
-   shortest edges [S];
+2. symmetrised 10-NN graph without edges longer than 3 x the median 1-NN spacing; components under 20 voxels
+   dropped, the others bridged by their shortest edges [S];
 3. roots: the lowest vertex of each central cluster of the bottom 2 % of the height, per separate plant [A, L:
    several roots allowed; S: the central and per-plant rules, reference_impl.common.roots.find_roots];
-4. shortest-path tree by multi-source Dijkstra [L];
+4. shortest-path tree by multi-source Dijkstra [L]; a subtree hung by a bridge longer than its own length dropped
+   [S];
 5. five outer iterations [G] of: vertex weights = supported subtree length [L, G, A]; the orientation field
    minimising sum w_pc^2 |o_p - o_c|^2 + w_c^2 |o_c - e_c|^2 (Groot's energy) solved as one sparse linear least
    squares and normalised [S: the cheap equivalent of Groot's sphere-constrained solve]; re-embedding of the
-   positions by sparse least squares, edges aligned with the field plus a data term [G]; resampling by merging the
+   positions by sparse least squares, edges aligned with the field plus a data term [G], no vertex farther from
+   the cloud than its radius plus half a voxel [S]; resampling by merging the
    vertices sharing a one-voxel cell and rebuilding the shortest-path tree [S];
 6. simplification until stable: subtree-ratio pruning 0.02 [A: 0.019] plus twigs under 3 voxels [S], sibling merging
    below 25 deg with length ratio in [1/2, 2] [A], removal of degree-2 vertices within the local radius of their
@@ -39,15 +41,18 @@ from scipy.sparse.linalg import spsolve
 from scipy.spatial import cKDTree
 
 from plantbench.errors import InputError
-from plantbench.geometry.vectors import unit
+from plantbench.geometry.vectors import levels, unit
 from plantbench.plant import Leaf, Skeleton, TriMesh
 from reference_impl.common.geometry import bezier_leaves, branch_mesh, leaf_frames
 from reference_impl.common.graph import (
     bridge_components,
+    components,
+    edge_lengths,
     knn_graph,
     median_spacing,
     shortest_path_tree,
     subtree_lengths,
+    subtree_sums,
     voxel_downsample,
 )
 from reference_impl.common.ground import Ground
@@ -89,6 +94,19 @@ class LivnyParams:
     """Neighbours per vertex in the kNN graph [S]."""
     max_edge_factor: float = 3.0
     """Drop kNN edges longer than this times the median 1-NN spacing, then bridge components [S]."""
+    min_component_voxels: int = 20
+    """Components of the kNN graph with fewer voxels than this are dropped before they are bridged: a scrap of a sparse
+    scan (a few returns from a twig, a leaf, a stray) that bridging would hang from the tree by a straight edge
+    through the air [S: measured on the real suite and the multiview mvs clouds, docs/tuning/xu.md]. 0: none."""
+    bridge_support: float = 1.0
+    """A subtree hung from the shortest-path tree by a bridge (an edge the kNN graph does not have) is dropped when the
+    bridge is longer than this times the subtree's own length: a fragment smaller than the gap it would be drawn
+    across [S: docs/tuning/xu.md]. 0: none."""
+    max_offset_voxels: float = 0.5
+    """After each re-embedding, a vertex farther from the cloud than its pipe radius plus this many voxels is pulled
+    back to that distance: the contraction moves vertices onto a branch's axis, never out of the data (on a sparse
+    scan the field term otherwise straightens chains across the gaps between branches) [S: docs/tuning/xu.md].
+    0: none."""
     root_slab_fraction: float = 0.02
     """Roots are searched in the lowest 2 % of the height [A]."""
     plant_gap_fraction: float = 0.05
@@ -223,6 +241,18 @@ def _anchors(tree: cKDTree, cloud: np.ndarray, mass: np.ndarray, positions: np.n
     return out
 
 
+def _stay_near(tree: cKDTree, cloud: np.ndarray, positions: np.ndarray, limit: np.ndarray) -> np.ndarray:
+    """Positions farther than ``limit`` from the cloud pulled back along the line to their nearest cloud vertex until
+    they are ``limit`` from it."""
+    dist, idx = tree.query(positions, workers=-1)
+    far = dist > limit
+    if far.any():
+        near = cloud[idx[far]]
+        positions = positions.copy()
+        positions[far] = near + (positions[far] - near) * (limit[far] / dist[far])[:, None]
+    return positions
+
+
 def _voxel_cloud(plant: np.ndarray, height: float, params: LivnyParams) -> tuple[np.ndarray, np.ndarray, float]:
     """Step 1's downsampling: the voxel centroids, their point counts (as float masses) and the voxel edge, grown
     until at most ``max_vertices`` voxels remain."""
@@ -236,17 +266,46 @@ def _voxel_cloud(plant: np.ndarray, height: float, params: LivnyParams) -> tuple
     return cloud, mass.astype(float), voxel
 
 
+def _drop_scraps(cloud: np.ndarray, mass: np.ndarray, params: LivnyParams) -> tuple[np.ndarray, np.ndarray]:
+    """Step 2's scrap removal: the voxels of the kNN graph's components smaller than ``min_component_voxels``
+    dropped (all kept when fewer than 3 would remain). Returns ``cloud, mass``."""
+    if params.min_component_voxels <= 1:
+        return cloud, mass
+    graph = knn_graph(cloud, params.k, max_edge=params.max_edge_factor * max(median_spacing(cloud), 1e-9))
+    _, lab = components(graph)
+    keep = np.bincount(lab)[lab] >= params.min_component_voxels
+    return (cloud[keep], mass[keep]) if keep.sum() >= 3 else (cloud, mass)
+
+
 def _shortest_path_forest(cloud: np.ndarray, ground: Ground, height: float, voxel: float, params: LivnyParams
-                          ) -> tuple[np.ndarray, dict]:
+                          ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Steps 2-4: the kNN graph with its components bridged, the roots and the shortest-path tree from them.
-    Returns the parents and statistics."""
+    Returns the parents, the vertices to keep (:func:`_unbridged`) and statistics."""
     spacing = max(median_spacing(cloud), 1e-9)
     graph = knn_graph(cloud, params.k, max_edge=params.max_edge_factor * spacing)
     graph, nbridges = bridge_components(cloud, graph)
     roots = find_roots(cloud, ground.height(cloud), graph, slab=params.root_slab_fraction * height + voxel,
                        group_cell=max(params.plant_gap_fraction * height, 2 * params.max_edge_factor * spacing))
     _, parents, _ = shortest_path_tree(graph, roots)
-    return parents, {"bridges": nbridges, "roots": len(roots)}
+    keep = np.ones(len(cloud), bool)
+    if params.bridge_support > 0:
+        keep = _unbridged(cloud, parents, params.max_edge_factor * spacing, params.bridge_support)
+    return parents, keep, {"bridges": nbridges, "roots": len(roots), "unbridged": int((~keep).sum())}
+
+
+def _unbridged(cloud: np.ndarray, parents: np.ndarray, max_edge: float, support: float) -> np.ndarray:
+    """(n,) False for the vertices of every subtree hung from the tree by a bridge (an edge longer than ``max_edge``,
+    which only :func:`bridge_components` adds) longer than ``support`` times the subtree's own length (its edges that
+    are not bridges): a fragment of the scan smaller than the gap it would be drawn across [S]."""
+    inc = edge_lengths(cloud, parents)
+    bridge = inc > max_edge * (1 + 1e-9)
+    lv = levels(parents)
+    own = subtree_sums(np.where(bridge, 0.0, inc), parents, lv)
+    drop = bridge & (inc > support * own)
+    for idx in lv:  # a dropped vertex drops its subtree
+        c = idx[parents[idx] >= 0]
+        drop[c] |= drop[parents[c]]
+    return ~drop
 
 
 def _pipe_radii(pos: np.ndarray, parents: np.ndarray, plant: np.ndarray, *, voxel: float, height: float,
@@ -275,6 +334,8 @@ def _contract(cloud: np.ndarray, mass: np.ndarray, parents: np.ndarray, plant: n
         rho = np.clip(params.anchor_radius_factor * radii, voxel, 0.1 * height)
         anchors = _anchors(tree, cloud, mass, pos, field, rho)
         pos = reembed(pos, parents, w, field, anchors, params.data_weight)
+        if params.max_offset_voxels > 0:
+            pos = _stay_near(tree, cloud, pos, radii + params.max_offset_voxels * voxel)
         pos, parents, vmass, _ = spatial_merge(pos, parents, vmass, params.merge_factor * voxel)
     return pos, parents
 
@@ -338,8 +399,13 @@ def reconstruct_livny(points: np.ndarray, rng: np.random.Generator, params: Livn
     info: dict = {"points": len(pts), "plant_points": len(plant), "voxel": voxel, "vertices": len(cloud)}
     if len(cloud) < 3:
         raise InputError(f"the cloud collapses to {len(cloud)} voxels of {voxel:.4g} m; too small to skeletonise")
-    parents, stats = _shortest_path_forest(cloud, ground, height, voxel, params)
+    cloud, mass = _drop_scraps(cloud, mass, params)
+    info["scraps"] = info["vertices"] - len(cloud)
+    parents, keep, stats = _shortest_path_forest(cloud, ground, height, voxel, params)
     info.update(stats)
+    if not keep.all():
+        parents, _ = remove_nodes(parents, keep)
+        cloud, mass = cloud[keep], mass[keep]
     pos, parents = _contract(cloud, mass, parents, plant, voxel=voxel, height=height, params=params)
     info["bsg_vertices"] = len(pos)
     pos, parents = _simplify(pos, parents, plant, voxel=voxel, height=height, params=params)

@@ -1,0 +1,84 @@
+"""What the methods do with a sparse real scan: a stem cut off from its crown by a gap, crown fragments across gaps,
+skeleton vertices pulled off the data (reference_impl.common.roots, reference_impl.livny.bsg)."""
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from reference_impl.common.graph import knn_graph, median_spacing
+from reference_impl.common.roots import find_roots
+from reference_impl.livny.bsg import _stay_near, _unbridged
+
+
+def _stem_and_crown(rng, stem_xy=(0.0, 0.0)):
+    """A 1 m stem (a ring of 6 bark points every 4 cm: 150 points, 3.6 % of the scan, as sparse as AdTree's tree13),
+    nothing between 1 and 2 m, a crown ball of radius 1.5 m at 3.5 m over the origin."""
+    z = np.repeat(np.arange(0.0, 1.0, 0.04), 6)
+    a = np.tile(np.linspace(0, 2 * np.pi, 6, endpoint=False), len(z) // 6)
+    stem = np.c_[stem_xy[0] + 0.05 * np.cos(a), stem_xy[1] + 0.05 * np.sin(a), z]
+    d = rng.normal(size=(4000, 3))
+    crown = np.array([0.0, 0.0, 3.5]) + 1.5 * d / np.linalg.norm(d, axis=1, keepdims=True) * rng.random((4000, 1)) ** (
+        1 / 3)
+    return np.concatenate([stem, crown]), len(stem)
+
+
+def _roots(points):
+    graph = knn_graph(points, 10, max_edge=3 * median_spacing(points))
+    return find_roots(points, points[:, 2], graph, slab=0.02 * 5.0, group_cell=0.05 * 5.0)
+
+
+def test_a_stem_cut_off_from_its_crown_roots_the_tree(rng):
+    points, n_stem = _stem_and_crown(rng)
+    roots = _roots(points)
+    # the stem, too small to count as a plant of its own (under 5 % of the points), is joined to the crown above it,
+    # and the root is at its base, not 2 m up at the crown's bottom
+    assert len(roots) == 1
+    assert roots[0] < n_stem and points[roots[0], 2] < 0.02
+
+
+def test_a_post_beside_the_crown_is_not_taken_for_its_stem(rng):
+    points, n_stem = _stem_and_crown(rng, stem_xy=(3.0, 0.0))
+    roots = _roots(points)
+    assert all(r >= n_stem for r in roots)
+    assert points[roots, 2].min() > 1.9
+
+
+def _bridged_tree():
+    """A chain of 20 vertices 1 apart on the x axis; a 2-vertex fragment hung 5 away from its end (own length 1), a
+    10-vertex fragment hung 4 away from its start (own length 9), itself carrying a 1-vertex fragment 6 away."""
+    main = np.c_[np.arange(20.0), np.zeros(20), np.zeros(20)]
+    small = np.array([[24.0, 0, 0], [25.0, 0, 0]])
+    big = np.c_[np.zeros(10), np.full(10, 4.0), np.arange(10.0)]
+    lone = np.array([[0.0, 10.0, 9.0]])
+    cloud = np.concatenate([main, small, big, lone])
+    parents = np.r_[-1, np.arange(19), 19, 20, 0, np.arange(22, 31), 31]
+    return cloud, parents
+
+
+def test_fragments_smaller_than_their_bridge_are_dropped():
+    cloud, parents = _bridged_tree()
+    keep = _unbridged(cloud, parents, max_edge=1.5, support=1.0)
+    # naive: a bridge (edge > 1.5) is kept when the subtree below it has at least as much non-bridge length
+    expect = np.ones(len(cloud), bool)
+    expect[20:22] = False  # own 1 < bridge 5
+    expect[32] = False  # own 0 < bridge 6
+    np.testing.assert_array_equal(keep, expect)
+    # a stricter rule (fragments 3x their bridge) drops the 9-long fragment behind its 4-long bridge too
+    assert not _unbridged(cloud, parents, max_edge=1.5, support=0.3)[22:].any()
+
+
+def test_stay_near_pulls_far_vertices_back_to_the_limit(rng):
+    cloud = rng.random((500, 3))
+    pos = rng.random((200, 3)) * 3 - 1
+    limit = rng.uniform(0.05, 0.2, 200)
+    tree = cKDTree(cloud)
+    d0, i0 = tree.query(pos)
+    out = _stay_near(tree, cloud, pos, limit)
+    d1, _ = tree.query(out)
+    assert np.all(d1 <= limit + 1e-9)
+    near = d0 <= limit
+    np.testing.assert_array_equal(out[near], pos[near])
+    # a far vertex moves straight towards its nearest cloud point, to the limit
+    far = ~near
+    np.testing.assert_allclose(np.linalg.norm(out[far] - cloud[i0[far]], axis=1), limit[far])
+    cross = np.cross(out[far] - cloud[i0[far]], pos[far] - cloud[i0[far]])
+    np.testing.assert_allclose(cross, 0, atol=1e-9)
