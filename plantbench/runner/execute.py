@@ -107,7 +107,7 @@ def execute_job(cache: str, job: dict, threads: int | None = None, budget: int |
     tmp = final.parent / f".{key}.{uuid.uuid4().hex[:8]}.tmp"
     tmp.mkdir(parents=True)
     params = json.dumps(job["params"])
-    cmd = [sys.executable, "-m", "plantbench.runner.worker", str(cache_p), kind, key, str(tmp), params]
+    cmd = [sys.executable, "-m", "plantbench.runner", str(cache_p), kind, key, str(tmp), params]
     t0 = time.perf_counter()
     started = time.time()
     try:
