@@ -19,13 +19,14 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from plantbench.errors import PlantbenchError
-from plantbench.geometry.vectors import perpendicular
+from plantbench.geometry.vectors import perpendicular, unit
 from plantbench.plant import Skeleton
 from plantbench.skeletons import stem_at_height
+from reference_impl.common.graph import children_csr
 from reference_impl.common.radii import fit_trunk_radius
 
-__all__ = ["plant_groups", "find_roots", "stem_radius", "stem_radii", "half_gaps", "anchor_roots",
-           "breast_height_scale", "refuse_implausible_radii"]
+__all__ = ["plant_groups", "find_roots", "stem_radius", "stem_radii", "best_stem_radii", "trunk_axes", "half_gaps",
+           "anchor_roots", "breast_height_scale", "refuse_implausible_radii"]
 
 
 def plant_groups(positions: np.ndarray, cell: float) -> np.ndarray:
@@ -219,6 +220,59 @@ def stem_radii(points: np.ndarray, roots: np.ndarray, axes: np.ndarray, *, offse
                              fallback=fallback, on_bark=True)
         out.append(max(rad, min_radius))
     return np.asarray(out)
+
+
+def trunk_axes(pos: np.ndarray, parents: np.ndarray, w: np.ndarray, roots: np.ndarray, length: float
+                ) -> np.ndarray:
+    """(k, 3) unit axis of each root's stem: from the root to where its heaviest-child chain (by ``w``, e.g. the
+    supported length) has run ``length`` (the stretch the trunk cylinder is fitted over), up for a root without
+    children."""
+    ptr, kids = children_csr(parents)
+    out = np.tile([0.0, 0.0, 1.0], (len(roots), 1))
+    for i, r in enumerate(roots):
+        node, run = int(r), 0.0
+        while run < length and ptr[node + 1] > ptr[node]:
+            ch = kids[ptr[node]:ptr[node + 1]]
+            nxt = int(ch[np.argmax(w[ch])])
+            run += float(np.linalg.norm(pos[nxt] - pos[node]))
+            node = nxt
+        if node != r:
+            out[i] = unit(pos[node] - pos[r])
+    return out
+
+
+def best_stem_radii(points: np.ndarray, roots: np.ndarray, axes: list[np.ndarray], *, offset: float, length: float,
+                    max_radius: float, fallback: float, min_radius: float) -> np.ndarray:
+    """(k,) trunk radius of each stem like :func:`stem_radii`, fitted along each of several candidate ``axes``
+    (a list of (k, 3)), keeping per stem the circle the most points lie on (within a fifth of its radius, over the
+    fitted length): the stem's bark, rather than a small circle closed on a patch of it; ``fallback`` where no
+    candidate fits."""
+    roots = np.asarray(roots, float)
+    reach = np.minimum(float(max_radius), half_gaps(roots[:, :2]))
+    out = []
+    for i, (root, r_max) in enumerate(zip(roots, reach, strict=True)):
+        best, best_on = float(fallback), -1
+        for cand in axes:
+            axis = np.asarray(cand[i], float)
+            fit = stem_radius(points, root - axis * offset, axis, length=length, max_radius=r_max, fallback=None,
+                              on_bark=True)
+            if fit is None:
+                continue
+            on = _points_on_circle(points, fit[1], axis, fit[0], length)
+            if on > best_on:
+                best, best_on = fit[0], on
+        out.append(max(best, min_radius))
+    return np.asarray(out)
+
+
+def _points_on_circle(points: np.ndarray, centre: np.ndarray, direction: np.ndarray, r: float, length: float) -> int:
+    """How many of ``points`` lie within 0.2 ``r`` of the circle of radius ``r`` about the axis through ``centre``,
+    within ``length`` above it."""
+    axis = np.asarray(direction, float) / max(np.linalg.norm(direction), 1e-12)
+    rel = points - centre
+    t = rel @ axis
+    d = np.linalg.norm(rel - t[:, None] * axis, axis=1)
+    return int(np.sum((t >= 0) & (t <= length) & (np.abs(d - r) <= 0.2 * r)))
 
 
 def half_gaps(xy: np.ndarray) -> np.ndarray:

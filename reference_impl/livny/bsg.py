@@ -61,10 +61,11 @@ from reference_impl.common.leaves import foliage_cells, sample_edges, skeleton_d
 from reference_impl.common.radii import pipe_model_radii
 from reference_impl.common.roots import (
     anchor_roots,
+    best_stem_radii,
     breast_height_scale,
     find_roots,
     refuse_implausible_radii,
-    stem_radii,
+    trunk_axes,
 )
 from reference_impl.common.skeleton_ops import (
     branch_orders,
@@ -135,7 +136,13 @@ class LivnyParams:
     radius_exponent: float = 0.5
     """Pipe model: r proportional to supported length^exponent [L, standard pipe model]."""
     trunk_fit_fraction: float = 0.05
-    """Trunk cylinder fitted to the cloud over this fraction of the height above the root [S]."""
+    trunk_axis_candidates: bool = True
+    """The trunk cylinder is fitted along the orientation field at the root, along the stem's first
+    ``trunk_fit_fraction`` of the height (the heaviest-child chain) and along the vertical, and the circle the most
+    points lie on is kept (:func:`reference_impl.common.roots.best_stem_radii`): along a skewed axis, a fit about a
+    root on the bark closes a small circle on a patch of the bark, and which axis is skewed flips with a few
+    centimetres of the root's position (AdTree's tree7: 2 or 12 cm; the multiview wp_oak: 5 or 32 cm; the patch
+    circle holds 4 points, the bark 700-1000) [S: docs/tuning/xu.md]. False: the field alone."""
     breast_height_fit: bool = True
     """Scale every radius so the stem's radius 1.3 m above the base matches a circle fitted to the cloud there, on
     plants taller than 3 m whose stem shows bark at breast height (:func:`reference_impl.common.roots.
@@ -266,31 +273,34 @@ def _voxel_cloud(plant: np.ndarray, height: float, params: LivnyParams) -> tuple
     return cloud, mass.astype(float), voxel
 
 
-def _drop_scraps(cloud: np.ndarray, mass: np.ndarray, params: LivnyParams) -> tuple[np.ndarray, np.ndarray]:
-    """Step 2's scrap removal: the voxels of the kNN graph's components smaller than ``min_component_voxels``
-    dropped (all kept when fewer than 3 would remain). Returns ``cloud, mass``."""
-    if params.min_component_voxels <= 1:
-        return cloud, mass
-    graph = knn_graph(cloud, params.k, max_edge=params.max_edge_factor * max(median_spacing(cloud), 1e-9))
-    _, lab = components(graph)
-    keep = np.bincount(lab)[lab] >= params.min_component_voxels
-    return (cloud[keep], mass[keep]) if keep.sum() >= 3 else (cloud, mass)
-
-
 def _shortest_path_forest(cloud: np.ndarray, ground: Ground, height: float, voxel: float, params: LivnyParams
                           ) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Steps 2-4: the kNN graph with its components bridged, the roots and the shortest-path tree from them.
-    Returns the parents, the vertices to keep (:func:`_unbridged`) and statistics."""
+    """Steps 2-4: the kNN graph, the roots (found on the whole cloud), the scraps dropped (components under
+    ``min_component_voxels`` other than the roots'), the rest bridged, the shortest-path tree from the roots and the
+    subtrees hung by long bridges dropped (:func:`_unbridged`). Returns ``keep`` (n,) (the cloud's vertices in the
+    tree), the parents over ``cloud[keep]`` and statistics."""
+    n = len(cloud)
     spacing = max(median_spacing(cloud), 1e-9)
-    graph = knn_graph(cloud, params.k, max_edge=params.max_edge_factor * spacing)
-    graph, nbridges = bridge_components(cloud, graph)
+    max_edge = params.max_edge_factor * spacing
+    knn = knn_graph(cloud, params.k, max_edge=max_edge)
+    graph, nbridges = bridge_components(cloud, knn)
     roots = find_roots(cloud, ground.height(cloud), graph, slab=params.root_slab_fraction * height + voxel,
-                       group_cell=max(params.plant_gap_fraction * height, 2 * params.max_edge_factor * spacing))
+                       group_cell=max(params.plant_gap_fraction * height, 2 * max_edge))
+    keep = np.ones(n, bool)
+    if params.min_component_voxels > 1:
+        _, lab = components(knn)
+        keep = (np.bincount(lab)[lab] >= params.min_component_voxels) | np.isin(lab, lab[roots])
+        if not keep.all():
+            index = np.cumsum(keep) - 1
+            graph, nbridges = bridge_components(cloud[keep], knn[keep][:, keep].tocsr())
+            roots = index[roots]
+    kept = np.flatnonzero(keep)
     _, parents, _ = shortest_path_tree(graph, roots)
-    keep = np.ones(len(cloud), bool)
     if params.bridge_support > 0:
-        keep = _unbridged(cloud, parents, params.max_edge_factor * spacing, params.bridge_support)
-    return parents, keep, {"bridges": nbridges, "roots": len(roots), "unbridged": int((~keep).sum())}
+        tree_keep = _unbridged(cloud[kept], parents, max_edge, params.bridge_support)
+        parents, _ = remove_nodes(parents, tree_keep)
+        keep[kept[~tree_keep]] = False
+    return keep, parents, {"bridges": nbridges, "roots": len(roots), "scraps_and_unbridged": int(n - keep.sum())}
 
 
 def _unbridged(cloud: np.ndarray, parents: np.ndarray, max_edge: float, support: float) -> np.ndarray:
@@ -316,8 +326,12 @@ def _pipe_radii(pos: np.ndarray, parents: np.ndarray, plant: np.ndarray, *, voxe
     field = orientation_field(pos, parents, w)
     roots = np.flatnonzero(parents < 0)
     min_r = params.min_radius_fraction * height
-    trunk = stem_radii(plant, pos[roots], field[roots], offset=voxel, length=params.trunk_fit_fraction * height,
-                       max_radius=0.1 * height, fallback=2 * voxel, min_radius=min_r)
+    length = params.trunk_fit_fraction * height
+    axes = [field[roots]]
+    if params.trunk_axis_candidates:
+        axes += [trunk_axes(pos, parents, w, roots, length), np.tile([0.0, 0.0, 1.0], (len(roots), 1))]
+    trunk = best_stem_radii(plant, pos[roots], axes, offset=voxel, length=length, max_radius=0.1 * height,
+                            fallback=2 * voxel, min_radius=min_r)
     radii = pipe_model_radii(w, parents, trunk, exponent=params.radius_exponent, min_radius=min_r)
     return w, field, trunk, radii
 
@@ -399,13 +413,9 @@ def reconstruct_livny(points: np.ndarray, rng: np.random.Generator, params: Livn
     info: dict = {"points": len(pts), "plant_points": len(plant), "voxel": voxel, "vertices": len(cloud)}
     if len(cloud) < 3:
         raise InputError(f"the cloud collapses to {len(cloud)} voxels of {voxel:.4g} m; too small to skeletonise")
-    cloud, mass = _drop_scraps(cloud, mass, params)
-    info["scraps"] = info["vertices"] - len(cloud)
-    parents, keep, stats = _shortest_path_forest(cloud, ground, height, voxel, params)
+    keep, parents, stats = _shortest_path_forest(cloud, ground, height, voxel, params)
     info.update(stats)
-    if not keep.all():
-        parents, _ = remove_nodes(parents, keep)
-        cloud, mass = cloud[keep], mass[keep]
+    cloud, mass = cloud[keep], mass[keep]
     pos, parents = _contract(cloud, mass, parents, plant, voxel=voxel, height=height, params=params)
     info["bsg_vertices"] = len(pos)
     pos, parents = _simplify(pos, parents, plant, voxel=voxel, height=height, params=params)

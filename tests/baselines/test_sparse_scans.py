@@ -5,7 +5,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from reference_impl.common.graph import knn_graph, median_spacing
-from reference_impl.common.roots import find_roots
+from reference_impl.common.roots import best_stem_radii, find_roots, stem_radii
 from reference_impl.livny.bsg import _stay_near, _unbridged
 
 
@@ -82,3 +82,21 @@ def test_stay_near_pulls_far_vertices_back_to_the_limit(rng):
     np.testing.assert_allclose(np.linalg.norm(out[far] - cloud[i0[far]], axis=1), limit[far])
     cross = np.cross(out[far] - cloud[i0[far]], pos[far] - cloud[i0[far]])
     np.testing.assert_allclose(cross, 0, atol=1e-9)
+
+
+def test_best_stem_radii_keeps_the_circle_on_the_bark():
+    # a trunk of radius 0.3 m (a bark band 2 cm thick, seen all round); the root lies inside the ring, off its axis
+    r = np.random.default_rng(3)
+    a = r.uniform(0, 2 * np.pi, 4000)
+    rad = 0.3 + r.normal(0, 0.02, 4000)
+    points = np.c_[rad * np.cos(a), rad * np.sin(a), r.uniform(-0.1, 0.6, 4000)]
+    root = np.array([[-0.25, 0.05, 0.0]])
+    skewed = np.array([[0.2, 0.2, 1.0]]) / np.linalg.norm([0.2, 0.2, 1.0])
+    up = np.array([[0.0, 0.0, 1.0]])
+    kw = dict(offset=0.08, length=0.55, max_radius=1.1, fallback=0.01, min_radius=0.001)
+    # along the skewed axis the nested windows close a circle on a patch of the band
+    assert stem_radii(points, root, skewed, **kw)[0] < 0.15
+    for axes in ([skewed, up], [up, skewed]):
+        assert abs(best_stem_radii(points, root, axes, **kw)[0] - 0.3) < 0.03
+    # no candidate fits (no points near the root): the fallback
+    assert best_stem_radii(points + [5.0, 0, 0], root, [up], **kw)[0] == 0.01
