@@ -4,7 +4,8 @@
 - :func:`find_roots`: the lowest vertex of each central connected cluster of the lowest slab (AdTree uses the bottom
   2 % of the height; Livny allows several roots, which covers multi-stem shrubs): one root per stem base.
 - :func:`stem_radius`: the trunk radius of a stem from a cylinder fit (reference_impl.common.radii.fit_trunk_radius)
-  around the first part of the skeleton from that root; :func:`stem_radii` for every stem.
+  around the first part of the skeleton from that root; :func:`stem_radii` for every stem, along one axis or the
+  best of several (:func:`candidate_axes`).
 - :func:`anchor_roots`: add a node on the ground plane under each root, so skeletons start on the ground like the
   ground truth does (ground removal trimmed the stem's lowest centimetres).
 - :func:`breast_height_scale`: the factor that brings a skeleton's stem radius at breast height to the radius the
@@ -25,7 +26,7 @@ from plantbench.skeletons import stem_at_height
 from reference_impl.common.graph import children_csr
 from reference_impl.common.radii import fit_trunk_radius
 
-__all__ = ["plant_groups", "find_roots", "stem_radius", "stem_radii", "best_stem_radii", "trunk_axes", "half_gaps",
+__all__ = ["plant_groups", "find_roots", "stem_radius", "stem_radii", "candidate_axes", "trunk_axes", "half_gaps",
            "anchor_roots", "breast_height_scale", "refuse_implausible_radii"]
 
 
@@ -79,26 +80,30 @@ def _join_stem_bases(positions: np.ndarray, heights: np.ndarray, groups: np.ndar
     from its crown by a gap in the scan (an occluded or unscanned stretch of the trunk) [S: AdTree's tree13 has no
     points between about 1 and 2 m, and its crown alone would be rooted at 2 m]."""
     sizes = np.bincount(groups)
-    big = np.flatnonzero(sizes >= min_group_fraction * len(positions))
+    small = np.flatnonzero(sizes < min_group_fraction * len(positions))
     out = groups.copy()
-    for gid in big:
+    for gid in np.flatnonzero(sizes >= min_group_fraction * len(positions)):
         members = groups == gid
-        centre = np.median(positions[members, :2], axis=0)
-        hdist = np.hypot(*(positions[members, :2] - centre).T)
-        central = central_fraction * max(float(np.percentile(hdist, 90)), 1e-12)
+        centre, central, _ = _crown_centre(positions[members], central_fraction)
         low = float(heights[members].min())
-        for small in np.flatnonzero(sizes < min_group_fraction * len(positions)):
-            sm = groups == small
+        for sid in small:
+            sm = groups == sid
             if (heights[sm].min() < low and heights[sm].max() <= low
                     and np.hypot(*(positions[sm, :2].mean(0) - centre)) <= central):
                 out[sm] = gid
     return out
 
 
-def _roots_of_plant(positions, heights, graph, slab, min_fraction, central_fraction) -> list[int]:
+def _crown_centre(positions: np.ndarray, central_fraction: float) -> tuple[np.ndarray, float, np.ndarray]:
+    """A plant's centre (median x, y), the central radius (``central_fraction`` of the crown radius, the 90th
+    percentile of the horizontal distances from the centre) and those distances."""
     centre = np.median(positions[:, :2], axis=0)
     hdist = np.hypot(*(positions[:, :2] - centre).T)
-    central = central_fraction * max(float(np.percentile(hdist, 90)), 1e-12)
+    return centre, central_fraction * max(float(np.percentile(hdist, 90)), 1e-12), hdist
+
+
+def _roots_of_plant(positions, heights, graph, slab, min_fraction, central_fraction) -> list[int]:
+    centre, central, hdist = _crown_centre(positions, central_fraction)
     low = float(np.min(heights))
     in_slab = np.flatnonzero(heights <= low + slab)
     if len(in_slab) > 1:
@@ -161,17 +166,25 @@ def _ring_fit(points: np.ndarray, base: np.ndarray, direction: np.ndarray, lengt
     return fit if on_it and _bark_ring(*_on_circle(points, centre, direction, r, length)) else None
 
 
+def _cylinder_coords(points: np.ndarray, centre: np.ndarray, direction: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each point's position along the axis through ``centre`` (``direction``, normalised here), its offset across
+    the axis and that offset's length: ``(t (n,), perp (n, 3), d (n,))``."""
+    axis = np.asarray(direction, float) / max(np.linalg.norm(direction), 1e-12)
+    rel = points - centre
+    t = rel @ axis
+    perp = rel - t[:, None] * axis
+    return t, perp, np.linalg.norm(perp, axis=1)
+
+
 def _on_circle(points: np.ndarray, centre: np.ndarray, direction: np.ndarray, r: float, length: float
                ) -> tuple[float, float, float]:
     """Of the points within ``length`` above ``centre`` along ``direction`` and 1.5 ``r`` of the axis: the share
     within 0.2 ``r`` of the circle (near 1 for one stem's bark, low for a circle spanning two stems), and the share
     of 36 sectors about the axis those points reach (most of them for a bark ring, a few for a ring of thin stems),
     and the share inside 0.6 ``r`` (none in a hollow bark ring)."""
+    t, perp, d = _cylinder_coords(points, centre, direction)
     axis = np.asarray(direction, float) / max(np.linalg.norm(direction), 1e-12)
-    rel = points - centre
-    t = rel @ axis
-    perp = rel - t[:, None] * axis
-    d = np.linalg.norm(perp, axis=1)
     sel = (t >= 0) & (t <= length) & (d <= 1.5 * r)
     if not sel.any():
         return 0.0, 0.0, 1.0
@@ -211,19 +224,36 @@ def stem_radii(points: np.ndarray, roots: np.ndarray, axes: np.ndarray, *, offse
                max_radius: float, fallback: float, min_radius: float) -> np.ndarray:
     """(k,) trunk radius of each stem, at least ``min_radius``: :func:`stem_radius` fitted from ``offset`` below
     the root along its stem axis, within ``max_radius`` and half the distance to the nearest other root (a stem is
-    not wider than the gap to its neighbour). roots, axes : (k, 3) root positions and unit stem axes."""
+    not wider than the gap to its neighbour); ``fallback`` where no circle fits. roots : (k, 3) root positions; axes :
+    (k, 3) unit stem axes, or (c, k, 3) candidates (:func:`candidate_axes`), of whose circles each stem keeps the one
+    the most points lie on (within a fifth of its radius, over the fitted length): the stem's bark, rather than a
+    small circle closed on a patch of it along a skewed axis."""
     roots = np.asarray(roots, float)
+    axes = np.asarray(axes, float).reshape(-1, len(roots), 3)
     reach = np.minimum(float(max_radius), half_gaps(roots[:, :2]))
     out = []
-    for root, axis, r_max in zip(roots, axes, reach, strict=True):
-        rad, _ = stem_radius(points, root - axis * offset, axis, length=length, max_radius=r_max,
-                             fallback=fallback, on_bark=True)
-        out.append(max(rad, min_radius))
+    for i, (root, r_max) in enumerate(zip(roots, reach, strict=True)):
+        best, best_on = float(fallback), -1
+        for axis in axes[:, i]:
+            fit = stem_radius(points, root - axis * offset, axis, length=length, max_radius=r_max, fallback=None,
+                              on_bark=True)
+            if fit is not None and (on := _points_on_circle(points, fit[1], axis, fit[0], length)) > best_on:
+                best, best_on = fit[0], on
+        out.append(max(best, min_radius))
     return np.asarray(out)
 
 
+def candidate_axes(own: np.ndarray, positions: np.ndarray, parents: np.ndarray, weights: np.ndarray,
+                   roots: np.ndarray, length: float) -> np.ndarray:
+    """(3, k, 3) candidate stem axes for :func:`stem_radii`: a method's own axis at each root (k, 3), the axis of the
+    stem's first ``length`` (:func:`trunk_axes`, heaviest child by ``weights``) and the vertical."""
+    up = np.tile([0.0, 0.0, 1.0], (len(roots), 1))
+    return np.stack([np.asarray(own, float).reshape(-1, 3), trunk_axes(positions, parents, weights, roots, length),
+                     up])
+
+
 def trunk_axes(pos: np.ndarray, parents: np.ndarray, w: np.ndarray, roots: np.ndarray, length: float
-                ) -> np.ndarray:
+               ) -> np.ndarray:
     """(k, 3) unit axis of each root's stem: from the root to where its heaviest-child chain (by ``w``, e.g. the
     supported length) has run ``length`` (the stretch the trunk cylinder is fitted over), up for a root without
     children."""
@@ -241,37 +271,10 @@ def trunk_axes(pos: np.ndarray, parents: np.ndarray, w: np.ndarray, roots: np.nd
     return out
 
 
-def best_stem_radii(points: np.ndarray, roots: np.ndarray, axes: list[np.ndarray], *, offset: float, length: float,
-                    max_radius: float, fallback: float, min_radius: float) -> np.ndarray:
-    """(k,) trunk radius of each stem like :func:`stem_radii`, fitted along each of several candidate ``axes``
-    (a list of (k, 3)), keeping per stem the circle the most points lie on (within a fifth of its radius, over the
-    fitted length): the stem's bark, rather than a small circle closed on a patch of it; ``fallback`` where no
-    candidate fits."""
-    roots = np.asarray(roots, float)
-    reach = np.minimum(float(max_radius), half_gaps(roots[:, :2]))
-    out = []
-    for i, (root, r_max) in enumerate(zip(roots, reach, strict=True)):
-        best, best_on = float(fallback), -1
-        for cand in axes:
-            axis = np.asarray(cand[i], float)
-            fit = stem_radius(points, root - axis * offset, axis, length=length, max_radius=r_max, fallback=None,
-                              on_bark=True)
-            if fit is None:
-                continue
-            on = _points_on_circle(points, fit[1], axis, fit[0], length)
-            if on > best_on:
-                best, best_on = fit[0], on
-        out.append(max(best, min_radius))
-    return np.asarray(out)
-
-
 def _points_on_circle(points: np.ndarray, centre: np.ndarray, direction: np.ndarray, r: float, length: float) -> int:
     """How many of ``points`` lie within 0.2 ``r`` of the circle of radius ``r`` about the axis through ``centre``,
     within ``length`` above it."""
-    axis = np.asarray(direction, float) / max(np.linalg.norm(direction), 1e-12)
-    rel = points - centre
-    t = rel @ axis
-    d = np.linalg.norm(rel - t[:, None] * axis, axis=1)
+    t, _, d = _cylinder_coords(points, centre, direction)
     return int(np.sum((t >= 0) & (t <= length) & (np.abs(d - r) <= 0.2 * r)))
 
 

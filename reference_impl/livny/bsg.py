@@ -61,11 +61,11 @@ from reference_impl.common.leaves import foliage_cells, sample_edges, skeleton_d
 from reference_impl.common.radii import pipe_model_radii
 from reference_impl.common.roots import (
     anchor_roots,
-    best_stem_radii,
     breast_height_scale,
+    candidate_axes,
     find_roots,
     refuse_implausible_radii,
-    trunk_axes,
+    stem_radii,
 )
 from reference_impl.common.skeleton_ops import (
     branch_orders,
@@ -139,7 +139,7 @@ class LivnyParams:
     trunk_axis_candidates: bool = True
     """The trunk cylinder is fitted along the orientation field at the root, along the stem's first
     ``trunk_fit_fraction`` of the height (the heaviest-child chain) and along the vertical, and the circle the most
-    points lie on is kept (:func:`reference_impl.common.roots.best_stem_radii`): along a skewed axis, a fit about a
+    points lie on is kept (:func:`reference_impl.common.roots.stem_radii`): along a skewed axis, a fit about a
     root on the bark closes a small circle on a patch of the bark, and which axis is skewed flips with a few
     centimetres of the root's position (AdTree's tree7: 2 or 12 cm; the multiview wp_oak: 5 or 32 cm; the patch
     circle holds 4 points, the bark 700-1000) [S: docs/tuning/xu.md]. False: the field alone."""
@@ -327,11 +327,11 @@ def _pipe_radii(pos: np.ndarray, parents: np.ndarray, plant: np.ndarray, *, voxe
     roots = np.flatnonzero(parents < 0)
     min_r = params.min_radius_fraction * height
     length = params.trunk_fit_fraction * height
-    axes = [field[roots]]
+    axes = field[roots]
     if params.trunk_axis_candidates:
-        axes += [trunk_axes(pos, parents, w, roots, length), np.tile([0.0, 0.0, 1.0], (len(roots), 1))]
-    trunk = best_stem_radii(plant, pos[roots], axes, offset=voxel, length=length, max_radius=0.1 * height,
-                            fallback=2 * voxel, min_radius=min_r)
+        axes = candidate_axes(axes, pos, parents, w, roots, length)
+    trunk = stem_radii(plant, pos[roots], axes, offset=voxel, length=length, max_radius=0.1 * height,
+                       fallback=2 * voxel, min_radius=min_r)
     radii = pipe_model_radii(w, parents, trunk, exponent=params.radius_exponent, min_radius=min_r)
     return w, field, trunk, radii
 

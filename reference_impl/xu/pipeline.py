@@ -23,11 +23,11 @@ from reference_impl.common.inputs import plant_height, split_ground
 from reference_impl.common.radii import murray_angle, wbe_murray_radii
 from reference_impl.common.roots import (
     anchor_roots,
-    best_stem_radii,
     breast_height_scale,
+    candidate_axes,
     find_roots,
     refuse_implausible_radii,
-    trunk_axes,
+    stem_radii,
 )
 from reference_impl.common.skeleton_ops import branch_orders, hermite_smooth, prune_short_tips, remove_nodes, simplify
 from reference_impl.xu.skeleton import bin_skeleton, probe_extend
@@ -120,7 +120,7 @@ class XuParams:
     trunk_axis_candidates: bool = True
     """The base radius is fitted along the root's first edge, along the stem's first ``trunk_fit_fraction`` of the
     height (the chain of largest supported length) and along the vertical, and the circle the most points lie on is
-    kept (:func:`reference_impl.common.roots.best_stem_radii`; docs/tuning/xu.md) [S]. False: the first edge
+    kept (:func:`reference_impl.common.roots.stem_radii`; docs/tuning/xu.md) [S]. False: the first edge
     alone."""
     breast_height_fit: bool = True
     """Scale every radius so the stem's radius 1.3 m above the base matches a circle fitted to the cloud there, on
@@ -316,12 +316,11 @@ def _radii_and_angles(pos: np.ndarray, par: np.ndarray, plant: np.ndarray, groun
     min_r = params.min_radius_fraction * height
     roots = np.flatnonzero(par < 0)
     length = params.trunk_fit_fraction * height
-    axes = [_stem_axes(pos, par)]
+    axes = _stem_axes(pos, par)
     if params.trunk_axis_candidates:
-        axes += [trunk_axes(pos, par, subtree_lengths(pos, par), roots, length), np.tile([0.0, 0.0, 1.0],
-                                                                                         (len(roots), 1))]
-    rr = best_stem_radii(plant, pos[roots], axes, offset=radius, length=length, max_radius=0.1 * height,
-                         fallback=radius, min_radius=min_r)
+        axes = candidate_axes(axes, pos, par, subtree_lengths(pos, par), roots, length)
+    rr = stem_radii(plant, pos[roots], axes, offset=radius, length=length, max_radius=0.1 * height,
+                    fallback=radius, min_radius=min_r)
     radii = wbe_murray_radii(pos, par, rr, wbe_exponent=params.wbe_exponent,
                              murray_exponent=params.murray_exponent, min_radius=min_r)
     pos, par, radii, nadj = adjust_branch_angles(pos, par, radii, tolerance_deg=params.angle_tolerance_deg,

@@ -5,7 +5,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from reference_impl.common.graph import knn_graph, median_spacing
-from reference_impl.common.roots import best_stem_radii, find_roots, stem_radii
+from reference_impl.common.roots import find_roots, stem_radii
 from reference_impl.livny.bsg import _stay_near, _unbridged
 
 
@@ -84,7 +84,7 @@ def test_stay_near_pulls_far_vertices_back_to_the_limit(rng):
     np.testing.assert_allclose(cross, 0, atol=1e-9)
 
 
-def test_best_stem_radii_keeps_the_circle_on_the_bark():
+def test_stem_radii_keeps_the_candidate_circle_on_the_bark():
     # a trunk of radius 0.3 m (a bark band 2 cm thick, seen all round); the root lies inside the ring, off its axis
     r = np.random.default_rng(3)
     a = r.uniform(0, 2 * np.pi, 4000)
@@ -97,6 +97,6 @@ def test_best_stem_radii_keeps_the_circle_on_the_bark():
     # along the skewed axis the nested windows close a circle on a patch of the band
     assert stem_radii(points, root, skewed, **kw)[0] < 0.15
     for axes in ([skewed, up], [up, skewed]):
-        assert abs(best_stem_radii(points, root, axes, **kw)[0] - 0.3) < 0.03
+        assert abs(stem_radii(points, root, axes, **kw)[0] - 0.3) < 0.03
     # no candidate fits (no points near the root): the fallback
-    assert best_stem_radii(points + [5.0, 0, 0], root, [up], **kw)[0] == 0.01
+    assert stem_radii(points + [5.0, 0, 0], root, [up], **kw)[0] == 0.01
