@@ -282,17 +282,28 @@ def compare(
     label_b: Annotated[str, typer.Option(help="What run B is, for the table.")] = "b",
     out: Annotated[Optional[Path], typer.Option(  # noqa: UP045
         help="Also write the table here: .csv, or .md for a markdown table.")] = None,
+    metric: Annotated[Optional[list[str]], typer.Option(  # noqa: UP045
+        help="A metric to compare (repeat the option for several; `plantbench metrics` lists them) "
+             "[default: the report's key metrics].")] = None,
 ) -> None:
     """Each method of two runs of the same cases, paired over the cases: means, B - A with its 95 % bootstrap
     interval, and whether B is better, worse or within noise (e.g. the mvs cloud against the oracle cloud: how much
     of a method's error is the cloud's)."""
     from plantbench.io.atomic import atomic_write
+    from plantbench.registry import did_you_mean
     from plantbench.report.gate import read_results
-    from plantbench.report.tables import compare_runs
+    from plantbench.report.tables import KEY_METRICS, compare_runs
 
     if label_a == label_b:
         raise InputError(f"--label-a and --label-b must differ (both {label_a!r})")
-    table = compare_runs(read_results(run_a), read_results(run_b), label_a=label_a, label_b=label_b)
+    if metric:
+        from plantbench.metrics.info import METRICS
+
+        for m in metric:
+            if m not in METRICS and m != "runtime_s":
+                raise InputError("--metric: " + did_you_mean("metric", m, [*METRICS, "runtime_s"]))
+    table = compare_runs(read_results(run_a), read_results(run_b), label_a=label_a, label_b=label_b,
+                         metrics=tuple(metric) if metric else KEY_METRICS)
     if table.empty:
         raise InputError(f"no method scored in both runs ({run_a}, {run_b})")
     md = _compare_markdown(table, label_a, label_b)

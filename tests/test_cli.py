@@ -66,17 +66,23 @@ def test_compare_two_runs_in_a_pipe(tmp_path):
     for name, shift in (("a", 0.0), ("b", 0.1)):
         (tmp_path / name).mkdir()
         pd.DataFrame([{"case": f"c{i}", "species": "s", "family": "f", "seed": 1, "method": "guo", "sweep": None,
-                       "metric": "skeleton.vf1@1%", "value": 0.3 + 0.01 * i + shift, "status": "ok"}
-                      for i in range(5)]).to_csv(tmp_path / name / "results.csv", index=False)
+                       "metric": metric, "value": 0.3 + 0.01 * i + shift, "status": "ok"}
+                      for i in range(5) for metric in ("skeleton.vf1@1%", "skeleton.lprecision@1%")]).to_csv(tmp_path / name / "results.csv", index=False)
     out = plantbench("compare", str(tmp_path / "a"), str(tmp_path / "b"), "--label-a", "mvs", "--label-b", "oracle",
                      "--out", str(tmp_path / "cmp.csv"))
     assert out.returncode == 0, out.stderr
     row = next(line for line in out.stdout.splitlines() if "skeleton.vf1@1%" in line)
     assert "| guo |" in row and "+0.100 [+0.100, +0.100]" in row and "oracle better" in row
     assert "\x1b[" not in out.stdout  # plain text into a pipe
-    assert pd.read_csv(tmp_path / "cmp.csv")["verdict"].tolist() == ["oracle better"]
+    assert pd.read_csv(tmp_path / "cmp.csv")["verdict"].tolist() == ["oracle better"]  # the key metrics only
     same = plantbench("compare", str(tmp_path / "a"), str(tmp_path / "b"), "--label-a", "x", "--label-b", "x")
     assert same.returncode == 2 and "must differ" in same.stderr
+    # --metric picks the rows; a misspelt one is one line naming the option, with the registered name it meant
+    one = plantbench("compare", str(tmp_path / "a"), str(tmp_path / "b"), "--metric", "skeleton.lprecision@1%")
+    assert one.returncode == 0, one.stderr
+    assert "skeleton.lprecision@1%" in one.stdout and "skeleton.vf1@1%" not in one.stdout
+    bad = plantbench("compare", str(tmp_path / "a"), str(tmp_path / "b"), "--metric", "skeleton.lprecison@1%")
+    assert bad.returncode == 2 and "--metric" in bad.stderr and "'skeleton.lprecision@1%'" in bad.stderr
 
 
 def test_capture_flags_are_the_capture_settings(tmp_path):
