@@ -115,8 +115,9 @@ class FilterParams:
     the reference and one other)."""
     reproj_px: float = 2.0
     """Agreement: the forward-backward reprojection error is below this many pixels ..."""
-    rel_depth: float = 0.01
-    """... and the relative depth difference is below this fraction."""
+    rel_depth: float = 0.005
+    """... and the relative depth difference is below this fraction (0.5 %: with the plant filling the frame, cameras
+    about 1.5 plant heights away, about 0.75 % of its height, 3-4 pixel footprints at 512 px; docs/tuning/mvs.md)."""
     search_radius: int = 1
     """The other view agrees when any of its pixels within this radius (Chebyshev, pixels) of the projection
     passes the test (0: nearest pixel only)."""
