@@ -20,6 +20,8 @@ weights every box mean by the validity mask, and reduces to the original filter 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numba
 import numpy as np
 
@@ -115,8 +117,8 @@ def _backproject(depth: np.ndarray, cam: Camera) -> tuple[np.ndarray, np.ndarray
 
 
 def consistency_counts(
-    depths: list[np.ndarray], cameras: list[Camera], *, views: list[list[int]], reproj_px: float, rel_depth: float,
-    search_radius: int = 0,
+    depths: list[np.ndarray], cameras: list[Camera], *, views: list[list[int]], reproj_px: float,
+    rel_depth: float | Sequence[float], search_radius: int = 0,
 ) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Per pixel, how many other views agree with its depth, and how many see through it.
 
@@ -126,7 +128,8 @@ def consistency_counts(
         scene (it counts as a surface farther than any point, for the free-space test only)
     cameras : one per depth map
     views : for each view, the other views to check against
-    reproj_px, rel_depth : agreement thresholds (forward-backward reprojection error in pixels, relative depth)
+    reproj_px, rel_depth : agreement thresholds (forward-backward reprojection error in pixels, relative depth: one
+        value, or one per view, the tolerance of that view as the reference)
     search_radius : view j agrees when any of its pixels within this Chebyshev radius of the projection passes the
         test (0: the nearest pixel only). Foliage needs it: visible leaf fragments are ~3 px wide, so the nearest
         pixel of j often holds another leaf although j saw the same surface one pixel away.
@@ -139,6 +142,7 @@ def consistency_counts(
     """
     if len(depths) != len(cameras):
         raise InputError("consistency_counts: one camera per depth map")
+    rels = [float(r) for r in np.broadcast_to(np.asarray(rel_depth, np.float64), (len(cameras),))]
     clean = [np.where(np.isfinite(d), d, np.nan).astype(np.float64) for d in depths]
     seen = [np.where(np.isposinf(d), np.inf, c) for d, c in zip(depths, clean, strict=True)]  # +inf: sees past
     world = thread_map(lambda dc: _backproject(*dc), list(zip(clean, cameras, strict=True)))
@@ -163,7 +167,7 @@ def consistency_counts(
             # forward-backward test only reads these
             uvb, zb = cam.project(world[j][0])
             _pair_counts(idx, u_i, v_i, zi, uv, np.round(uv).astype(np.int64), zj, seen[j].ravel(), slots[j],
-                         uvb, zb, cj.width, cj.height, float(reproj_px), float(rel_depth), int(search_radius), sup,
+                         uvb, zb, cj.width, cj.height, float(reproj_px), rels[i], int(search_radius), sup,
                          vio)
         return sup.reshape(h, w), vio.reshape(h, w)
 

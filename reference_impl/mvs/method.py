@@ -120,8 +120,9 @@ def filter_depth_maps(
     maps: list[DepthMap], images: list[np.ndarray], cameras: list[Camera], params: MVSParams | None = None,
 ) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Multi-view consistency (>= ``min_consistent`` agreeing views, at most ``max_violations`` free-space
-    violations), then the masked guided filter (a change larger than ``rel_depth`` is not applied: the filter must
-    not move a depth across a discontinuity).
+    violations; depths agree within ``filter.depth_px`` pixel footprints of the reference view), then the masked
+    guided filter (a change larger than that tolerance is not applied: the filter must not move a depth across a
+    discontinuity).
 
     Returns
     -------
@@ -135,16 +136,18 @@ def filter_depth_maps(
     # free-space test (no depth for the agreement test)
     seen = [d if m.background is None else np.where(m.background, np.inf, d).astype(np.float32)
             for d, m in zip(raw, maps, strict=True)]
+    rel = [f.rel_depth(cam.K[0, 0]) for cam in cameras]  # depth_px pixel footprints of each view
     support, violations = consistency_counts(
-        seen, cameras, views=nearest_views(cameras, f.consistency_views), reproj_px=f.reproj_px, rel_depth=f.rel_depth,
+        seen, cameras, views=nearest_views(cameras, f.consistency_views), reproj_px=f.reproj_px, rel_depth=rel,
         search_radius=f.search_radius,
     )
+
     def one(i: int) -> tuple[np.ndarray, np.ndarray]:
         keep = np.isfinite(raw[i]) & (support[i] >= f.min_consistent) & (violations[i] <= p.fusion.max_violations)
         out = np.where(keep, raw[i], np.nan).astype(np.float32)
         if f.guided and keep.any():
             g = masked_guided_filter(to_gray(images[i]), out, keep, f.guided_radius, f.guided_eps)
-            ok = keep & np.isfinite(g) & (np.abs(g - out) < f.rel_depth * out)
+            ok = keep & np.isfinite(g) & (np.abs(g - out) < rel[i] * out)
             out = np.where(ok, g, out).astype(np.float32)
         return out, keep
 

@@ -8,6 +8,7 @@ Every field that changes the output is here, with its default; :class:`MVSParams
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 from plantbench.errors import InputError
@@ -115,9 +116,12 @@ class FilterParams:
     the reference and one other)."""
     reproj_px: float = 2.0
     """Agreement: the forward-backward reprojection error is below this many pixels ..."""
-    rel_depth: float = 0.005
-    """... and the relative depth difference is below this fraction (0.5 %: with the plant filling the frame, cameras
-    about 1.5 plant heights away, about 0.75 % of its height, 3-4 pixel footprints at 512 px; docs/tuning/mvs.md)."""
+    depth_px: float = 0.005 * 256 / math.tan(math.radians(20))
+    """... and the depths differ by less than this many pixel footprints (a pixel at depth z spans z / f, f the
+    reference view's focal length in pixels): the relative tolerance is ``depth_px / f``, the same share of a pixel at
+    every image size. 3.52 footprints: 0.5 % of the depth at 512 px and a 40 deg field of view (f = 703.3 px), where
+    it was measured (with the plant filling the frame and the cameras about 1.5 plant heights away, about 0.75 % of
+    its height); 1 % at 256 px, 0.25 % at 1024 px (docs/tuning/mvs.md)."""
     search_radius: int = 1
     """The other view agrees when any of its pixels within this radius (Chebyshev, pixels) of the projection
     passes the test (0: nearest pixel only)."""
@@ -130,6 +134,14 @@ class FilterParams:
     guided: bool = True
     """Apply the guided filter to the kept depths."""
 
+    def __post_init__(self) -> None:
+        if not self.depth_px > 0:
+            raise InputError(f"mvs: filter__depth_px must be > 0 (pixel footprints), got {self.depth_px!r}")
+
+    def rel_depth(self, focal_px: float) -> float:
+        """The relative depth tolerance of a view with focal length ``focal_px`` (pixels): ``depth_px / focal_px``."""
+        return float(self.depth_px) / float(focal_px)
+
 
 @dataclass(frozen=True)
 class FusionParams:
@@ -139,8 +151,6 @@ class FusionParams:
     """Target number of points after voxel downsampling (the result has at most this many)."""
     max_violations: int = 1
     """A point is dropped when more than this many views see through it (free-space violations)."""
-    rel_depth: float = 0.01
-    """Relative depth tolerance of the free-space test."""
     pre_ground_factor: int = 4
     """Before ground removal the cloud is downsampled to this many times ``points`` only; the final downsampling
     to ``points`` comes after it."""

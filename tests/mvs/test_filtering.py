@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from plantbench.cameras import look_at
+from plantbench.errors import InputError
 from reference_impl.mvs.filtering import box_mean, consistency_counts, guided_filter, masked_guided_filter
 
 
@@ -209,3 +210,39 @@ def test_search_range_adds_background_planes_at_the_scene_spacing():
     assert np.diff(inv).mean() == pytest.approx((1 / 4 - 1 / 12) / 99, rel=0.02)
     assert search_range(4.0, 12.0, DepthParams(hypotheses=100)) == (4.0, 12.0, 100)
     assert search_range(4.0, 5.0, DepthParams(background_span=100.0))[1] == pytest.approx(500.0)  # finite: 100 x far
+
+
+def test_depth_tolerance_in_pixel_footprints():
+    """FilterParams.depth_px is a tolerance in pixel footprints: 0.5 % of the depth at 512 px and 40 deg (where it
+    was measured), 1 % at 256 px, 0.25 % at 1024 px (f from the field of view, computed here independently)."""
+    from reference_impl.mvs.params import FilterParams
+
+    for width, rel in ((256, 0.01), (512, 0.005), (1024, 0.0025)):
+        f = look_at((0, -3, 1), (0, 0, 1), fov_x_deg=40, width=width, height=width).K[0, 0]
+        assert f == pytest.approx(0.5 * width / np.tan(np.radians(20)))
+        assert FilterParams().rel_depth(f) == pytest.approx(rel, rel=1e-12)
+    with pytest.raises(InputError, match="depth_px"):
+        FilterParams(depth_px=0.0)
+
+
+@pytest.mark.parametrize("width", [128, 1024])
+def test_depth_agreement_holds_across_image_sizes(width):
+    """The same scene at two image sizes: a depth 1 pixel footprint off is confirmed and one 6 footprints off is
+    not, at both sizes. No fixed relative tolerance does both: 1 footprint at 128 px is 0.57 % of the depth, 6 at
+    1024 px are 0.43 %."""
+    from reference_impl.mvs.params import FilterParams
+
+    cams = [look_at((3 * np.cos(a), 3 * np.sin(a), 2.5), (0, 0, 0), fov_x_deg=40, width=width, height=width)
+            for a in np.radians([0, 15, -15])]
+    rel = [FilterParams().rel_depth(c.K[0, 0]) for c in cams]
+    centre = np.zeros((width, width), bool)
+    centre[width // 4: 3 * width // 4, width // 4: 3 * width // 4] = True
+    shares = []
+    for footprints in (1.0, 6.0):
+        depths = [_plane_depth(c) for c in cams]
+        depths[0] = depths[0] * (1 + footprints / cams[0].K[0, 0])
+        sup, _ = consistency_counts(depths, cams, views=[[1, 2], [0], [0]], reproj_px=width / 32, rel_depth=rel,
+                                    search_radius=1)
+        ok = centre & np.isfinite(depths[0])
+        shares.append(np.mean(sup[0][ok] >= 1))
+    assert shares[0] > 0.95 and shares[1] < 0.05
