@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from plantbench.errors import InputError
 from plantbench.schemas import unknown_options
 
-__all__ = ["NeighbourParams", "DepthParams", "FilterParams", "FusionParams", "GroundParams", "SfMParams", "MVSParams"]
+__all__ = ["WINDOW_REFERENCE_PX", "NeighbourParams", "DepthParams", "FilterParams", "FusionParams", "GroundParams", "SfMParams", "MVSParams"]
 
 
 @dataclass(frozen=True)
@@ -32,6 +32,10 @@ class NeighbourParams:
     """Preferred triangulation angle: candidates are ranked by |angle - best| weighted by their frustum overlap."""
     min_overlap: float = 0.2
     """Smallest fraction of the reference frustum (sampled over its depth range) that a neighbour must see."""
+
+
+WINDOW_REFERENCE_PX = 512
+"""The image size (shorter side, pixels) at which the depth windows' defaults were measured (the multiview suites)."""
 
 
 @dataclass(frozen=True)
@@ -93,6 +97,13 @@ class DepthParams:
     """Colour sigma of the bilateral support weights (grey levels in [0, 1])."""
     bilateral_sigma_space: float = 3.0
     """Spatial sigma of the bilateral support weights, pixels."""
+    window_scale: int = 0
+    """The windows above (``sweep_window``, ``pm_step``, ``bilateral_sigma_space``) are sizes at 512 px, where they
+    were measured; a view whose shorter side is S pixels runs them ``window_scale`` times larger: the sweep window
+    2 (w // 2) s + 1, the PatchMatch samples s ``pm_step`` pixels apart (the same (2 ``pm_radius`` + 1)^2 samples,
+    the same cost), the spatial sigma s times. 0 (auto): s = round(S / 512), at least 1, so a window covers the same
+    share of the view at every size above 512 px (1024 px: a 9 px sweep window, samples 2 px apart, sigma 6 px) and
+    smaller views keep the 512 px windows. 1: the sizes as given, at any image size [S: docs/tuning/mvs.md]."""
     max_cost: float = 0.6
     """A pixel keeps its depth when its final cost (1 - weighted ZNCC, mean of the ``top_k`` best sources) is
     below this value."""
@@ -105,6 +116,18 @@ class DepthParams:
     far end (with ``hypotheses`` raised in proportion, so the scene keeps its plane spacing), and a pixel whose best
     depth lies there is background, not kept: without them a pixel that sees the ground far behind the plant takes
     the cheapest depth inside the scene, and such wrong depths agree across neighbouring views [S]. 0: off."""
+
+    def for_view(self, width: int, height: int) -> DepthParams:
+        """These parameters for a view of ``width`` x ``height`` pixels: the windows scaled by ``window_scale``
+        (see there), everything else as it is."""
+        if not (isinstance(self.window_scale, int) and self.window_scale >= 0):
+            raise InputError(f"mvs: depth_params__window_scale must be an integer >= 0 (0: auto), got "
+                             f"{self.window_scale!r}")
+        s = self.window_scale or max(1, int(min(width, height) / WINDOW_REFERENCE_PX + 0.5))
+        if s == 1:
+            return self
+        return dataclasses.replace(self, sweep_window=2 * (self.sweep_window // 2) * s + 1, pm_step=self.pm_step * s,
+                                   bilateral_sigma_space=self.bilateral_sigma_space * s, window_scale=1)
 
 
 @dataclass(frozen=True)

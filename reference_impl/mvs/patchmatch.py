@@ -740,7 +740,7 @@ def estimate_depth(
     DepthMap (depth NaN where the final cost is above ``max_cost`` (``coarse_max_cost`` in coarse to fine) or the
     window is textureless)
     """
-    p = params or DepthParams()
+    p = (params or DepthParams()).for_view(ref_cam.width, ref_cam.height)
     _check_depth_inputs(src_images, src_cams, p)
     ref = to_gray(ref_image)
     if ref.shape != (ref_cam.height, ref_cam.width):
@@ -789,7 +789,7 @@ def refine_geometric(
     source's cost raised by its reprojection error through that source's raw depth map (``src_depths``, one per
     source: the planes' depths of the photometric pass). A pixel is kept on its photometric cost, as in
     :func:`estimate_depth`; the result's ``planes`` are the refined ones."""
-    p = params
+    p = params.for_view(ref_cam.width, ref_cam.height)
     if start.planes is None:
         raise InputError("the geometric-consistency pass needs the photometric pass's planes (refine=True)")
     ref = to_gray(ref_image)

@@ -402,3 +402,24 @@ def test_geometric_pass_keeps_consistent_depth(views, ring):
     sweep = estimate_depth(*args, (near, far), p, rng=np.random.default_rng(0), refine=False)
     with pytest.raises(InputError, match="planes"):
         refine_geometric(*args, sweep, [views[j][1] for j in srcs], (near, far), p, rng=np.random.default_rng(1))
+
+
+@pytest.mark.parametrize(("size", "sweep", "step", "sigma"), [
+    ((256, 256), 5, 1, 3.0), ((512, 384), 5, 1, 3.0), ((1024, 767), 5, 1, 3.0), ((1024, 768), 9, 2, 6.0),
+    ((1024, 1024), 9, 2, 6.0), ((2048, 2048), 17, 4, 12.0), ((4000, 3000), 25, 6, 18.0)])
+def test_windows_scale_with_the_view(size, sweep, step, sigma):
+    """The 512 px windows, s = round(shorter side / 512) times larger above it (hand-computed: 2 (5 // 2) s + 1,
+    s x 1 px, s x 3 px); the PatchMatch sample count and everything else unchanged."""
+    p = DepthParams().for_view(*size)
+    assert (p.sweep_window, p.pm_step, p.bilateral_sigma_space) == (sweep, step, sigma)
+    assert (p.pm_radius, p.hypotheses, p.max_cost) == (DepthParams().pm_radius, 128, DepthParams().max_cost)
+    assert p.for_view(*size) == p  # scaled once: the result is pinned at its sizes
+
+
+def test_window_scale_option():
+    p = DepthParams(window_scale=1, pm_step=2, sweep_window=7)
+    assert p.for_view(1024, 1024) is p
+    q = DepthParams(window_scale=3).for_view(256, 256)
+    assert (q.sweep_window, q.pm_step, q.bilateral_sigma_space) == (13, 3, 9.0)
+    with pytest.raises(InputError, match="window_scale"):
+        DepthParams(window_scale=-1).for_view(512, 512)
