@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from plantbench.errors import InputError
 from plantbench.schemas import unknown_options
 
-__all__ = ["WINDOW_REFERENCE_PX", "NeighbourParams", "DepthParams", "FilterParams", "FusionParams", "GroundParams", "SfMParams", "MVSParams"]
+__all__ = ["REFERENCE_VIEW_PX", "REFERENCE_FOCAL_PX", "NeighbourParams", "DepthParams", "FilterParams", "FusionParams", "GroundParams", "SfMParams", "MVSParams"]
 
 
 @dataclass(frozen=True)
@@ -34,8 +34,11 @@ class NeighbourParams:
     """Smallest fraction of the reference frustum (sampled over its depth range) that a neighbour must see."""
 
 
-WINDOW_REFERENCE_PX = 512
-"""The image size (shorter side, pixels) at which the depth windows' defaults were measured (the multiview suites)."""
+REFERENCE_VIEW_PX = 512
+"""The shorter side, pixels, of the views the depth and filter defaults were measured on (the multiview suites):
+:attr:`DepthParams.window_scale` and :attr:`FilterParams.depth_px` carry them to other image sizes."""
+REFERENCE_FOCAL_PX = 0.5 * REFERENCE_VIEW_PX / math.tan(math.radians(40.0) / 2)
+"""Their focal length, pixels (the capture's default 40 deg horizontal field of view): 703.3."""
 
 
 @dataclass(frozen=True)
@@ -117,13 +120,15 @@ class DepthParams:
     depth lies there is background, not kept: without them a pixel that sees the ground far behind the plant takes
     the cheapest depth inside the scene, and such wrong depths agree across neighbouring views [S]. 0: off."""
 
-    def for_view(self, width: int, height: int) -> DepthParams:
-        """These parameters for a view of ``width`` x ``height`` pixels: the windows scaled by ``window_scale``
-        (see there), everything else as it is."""
+    def __post_init__(self) -> None:
         if not (isinstance(self.window_scale, int) and self.window_scale >= 0):
             raise InputError(f"mvs: depth_params__window_scale must be an integer >= 0 (0: auto), got "
                              f"{self.window_scale!r}")
-        s = self.window_scale or max(1, int(min(width, height) / WINDOW_REFERENCE_PX + 0.5))
+
+    def for_view(self, width: int, height: int) -> DepthParams:
+        """These parameters for a view of ``width`` x ``height`` pixels: the windows scaled by ``window_scale``
+        (see there), everything else as it is."""
+        s = self.window_scale or max(1, int(min(width, height) / REFERENCE_VIEW_PX + 0.5))
         if s == 1:
             return self
         return dataclasses.replace(self, sweep_window=2 * (self.sweep_window // 2) * s + 1, pm_step=self.pm_step * s,
@@ -139,7 +144,7 @@ class FilterParams:
     the reference and one other)."""
     reproj_px: float = 2.0
     """Agreement: the forward-backward reprojection error is below this many pixels ..."""
-    depth_px: float = 0.005 * 256 / math.tan(math.radians(20))
+    depth_px: float = 0.005 * REFERENCE_FOCAL_PX
     """... and the depths differ by less than this many pixel footprints (a pixel at depth z spans z / f, f the
     reference view's focal length in pixels): the relative tolerance is ``depth_px / f``, the same share of a pixel at
     every image size. 3.52 footprints: 0.5 % of the depth at 512 px and a 40 deg field of view (f = 703.3 px), where
