@@ -160,10 +160,33 @@ def adjust_branch_angles(positions: np.ndarray, parents: np.ndarray, radii: np.n
     from Eq. 3's prediction by more than ``tolerance_deg`` gets a new split point S on the parent axis, moved along
     the axis (at most ``shift_limit`` of the neighbouring edge) towards the point where the angle equals the
     prediction. S is inserted as a node; the child hangs from it. Returns positions, parents, radii and the number
-    of adjusted branches."""
+    of adjusted branches.
+
+    Two splits can insert points on the same edge (a split's S on the edge down to its main child, that child's own
+    S on the edge up to its parent): each S goes into the edge's chain in order along the edge, and a child is
+    re-hung together with the points already inserted above it, so every inserted point stays on the axis it was
+    made for (re-hanging the child alone would leave an inserted point with the axis radius carrying only a twig)."""
     pos = [p for p in positions]
     par = list(parents)
     rad = list(radii)
+    edge_of: dict[int, tuple[int, int]] = {}  # inserted node -> the original edge (upper, lower) it lies on
+
+    def insert(upper: int, lower: int, at: np.ndarray, r: float) -> int:
+        """Insert a node at ``at`` (on the edge from ``upper`` down to ``lower``) into that edge's chain, in order
+        along the edge; returns its index."""
+        d = positions[lower] - positions[upper]
+        u_new = float((at - positions[upper]) @ d)
+        below = lower
+        while edge_of.get(par[below]) == (upper, lower) and float((pos[par[below]] - positions[upper]) @ d) > u_new:
+            below = par[below]
+        pos.append(at)
+        par.append(int(par[below]))
+        rad.append(r)
+        s = len(pos) - 1
+        par[below] = s
+        edge_of[s] = (upper, lower)
+        return s
+
     ptr, kids = children_csr(parents)
     adjusted = 0
     for j in np.flatnonzero((np.diff(ptr) >= 2) & (parents >= 0)):
@@ -189,18 +212,14 @@ def adjust_branch_angles(positions: np.ndarray, parents: np.ndarray, radii: np.n
             if abs(t) < 1e-9:
                 continue
             if t < 0:  # on the parent edge: S between parent(j) and j
-                s_pos, s_par = positions[j] + t * d, int(par[j])
-                pos.append(s_pos)
-                par.append(s_par)
-                rad.append(float(radii[j]))
-                par[j] = len(pos) - 1
+                s = insert(int(parents[j]), int(j), positions[j] + t * d, float(radii[j]))
             else:  # on the main child's edge
-                dm = unit(positions[main] - positions[j])
-                pos.append(positions[j] + t * dm)
-                par.append(int(j))
-                rad.append(float(radii[main]))
-                par[main] = len(pos) - 1
-            par[c] = len(pos) - 1
+                s = insert(int(j), int(main), positions[j] + t * unit(positions[main] - positions[j]),
+                           float(radii[main]))
+            top = int(c)  # the lateral moves to S with any point already inserted on its own edge
+            while edge_of.get(par[top]) == (int(j), int(c)):
+                top = par[top]
+            par[top] = s
             adjusted += 1
             break  # one adjustment per split keeps the main axis intact
     return np.asarray(pos), np.asarray(par, np.int64), np.asarray(rad), adjusted

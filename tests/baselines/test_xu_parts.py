@@ -260,3 +260,31 @@ def test_synthesis_reach_limits_the_association():
     near = synthesize(pos, par, locs, dens, max_reach=float(nd.max()) + 1e-9, **kw)
     far = synthesize(pos, par, locs, dens, max_reach=float(nd[node >= 0].min()) - 1e-9, **kw)
     assert near.synthetic.sum() > 0 and far.synthetic.sum() == 0
+
+
+def test_branch_angle_two_split_points_on_one_edge_keep_the_axis():
+    """A split whose lateral leaves too steeply moves its S up the edge to its main child, and that child's own
+    lateral leaves downwards, so its S moves down the same edge. Whatever the order the splits are visited in (the
+    child here has the lower index), both points must end on the axis: walking down the thickest children from the
+    root reaches the top, every inserted point with the axis radius carries the axis, and the axis keeps its length
+    (the points are inserted in order along the edge, no zig-zag)."""
+    up, down = np.radians(15.0), np.radians(160.0)
+    pos = np.array([[0, 0, 0], [0, 0, 2.0], [0, 0, 1.0], [0, 0, 3.0],
+                    [0.3 * np.sin(up), 0, 1 + 0.3 * np.cos(up)],      # lateral of node 2 (z 1), steep
+                    [0.3 * np.sin(down), 0, 2 + 0.3 * np.cos(down)]])  # lateral of node 1 (z 2), hanging
+    par = np.array([-1, 2, 0, 1, 2, 1])
+    radii = np.array([0.1, 0.1, 0.1, 0.1, 0.02, 0.02])
+    npos, npar, nrad, n = adjust_branch_angles(pos, par, radii, tolerance_deg=5, shift_limit=0.5)
+    assert n == 2 and len(npos) == 8
+    kids = [np.flatnonzero(npar == i) for i in range(len(npar))]
+    node, axis = 0, [0]
+    while len(kids[node]):
+        node = int(kids[node][np.argmax(nrad[kids[node]])])
+        axis.append(node)
+    assert node == 3  # the thickest-child walk reaches the top of the axis
+    for s in (6, 7):  # both inserted points on the axis, each with an axis-radius child
+        assert s in axis and nrad[kids[s]].max() == 0.1
+    z = npos[axis, 2]
+    assert np.all(np.diff(z) > 0) and np.allclose(npos[axis, :2], 0)  # in order along the axis
+    for lat in (4, 5):  # each lateral hangs from an inserted point
+        assert npar[lat] in (6, 7)
