@@ -125,7 +125,8 @@ def _roots_of_plant(positions, heights, graph, slab, min_fraction, central_fract
 
 
 def stem_radius(points: np.ndarray, base: np.ndarray, direction: np.ndarray, *, length: float, max_radius: float,
-                fallback: float | None, windows: int = 5, on_bark: bool = False) -> tuple[float, np.ndarray] | None:
+                fallback: float | None, windows: int = 5, on_bark: bool = False,
+                in_stem: bool = False) -> tuple[float, np.ndarray] | None:
     """Trunk radius at a stem base from the cloud (cylinder fit along ``direction``). Returns ``(radius, axis point at
     the base)``; where no circle fits, ``(fallback, base)``, or None when ``fallback`` is None.
 
@@ -140,10 +141,15 @@ def stem_radius(points: np.ndarray, base: np.ndarray, direction: np.ndarray, *, 
     about the centre of the largest window's circle, and that answer wins when its circle is the larger, ``base``
     lies on it (within a quarter of its radius) and :func:`_bark_ring` finds the points near it to be one stem's
     hollow bark ring, not a circle through two stems or a ring of thin stems [S: docs/tuning/xu.md].
+    With ``in_stem`` (``base`` lies inside the stem's cross-section, e.g. the centroid of a density cluster of its
+    base), the same, but the answer needs ``base`` within its circle (a quarter of the radius of slack) instead of
+    on it: on a trunk much wider than the smallest window, whose projection is a ring with a gap where the capture
+    saw little, the centroid lies off the axis and the windows about it fit an arc of the bark (guo on
+    wp_weeping_willow-2: 8.1 cm where the bark ring has 26 cm) [S].
     """
     fit = _nested_fit(points, base, direction, length, max_radius, windows)
-    if on_bark:
-        ring = _ring_fit(points, base, direction, length, max_radius, windows)
+    if on_bark or in_stem:
+        ring = _ring_fit(points, base, direction, length, max_radius, windows, inside=in_stem)
         if ring is not None and (fit is None or ring[0] > fit[0]):
             fit = ring
     if fit is None and fallback is not None:
@@ -152,9 +158,10 @@ def stem_radius(points: np.ndarray, base: np.ndarray, direction: np.ndarray, *, 
 
 
 def _ring_fit(points: np.ndarray, base: np.ndarray, direction: np.ndarray, length: float, max_radius: float,
-              windows: int) -> tuple[float, np.ndarray] | None:
+              windows: int, inside: bool = False) -> tuple[float, np.ndarray] | None:
     """:func:`stem_radius`'s windows about the centre of the largest window's circle, where ``base`` lies on the
-    circle they find and :func:`_bark_ring` takes the points around it for one stem's bark; else None."""
+    circle they find (``inside``: within it) and :func:`_bark_ring` takes the points around it for one stem's bark;
+    else None."""
     r_all, c_all = fit_trunk_radius(points, base, direction, length=length, max_radius=max_radius, strict=True)
     if not (np.isfinite(r_all) and r_all > 0):
         return None
@@ -162,7 +169,8 @@ def _ring_fit(points: np.ndarray, base: np.ndarray, direction: np.ndarray, lengt
     if fit is None:
         return None
     r, centre = fit
-    on_it = abs(np.linalg.norm(_perp(base - centre, direction)) - r) <= 0.25 * r
+    off = float(np.linalg.norm(_perp(base - centre, direction)))
+    on_it = off <= 1.25 * r if inside else abs(off - r) <= 0.25 * r
     return fit if on_it and _bark_ring(*_on_circle(points, centre, direction, r, length)) else None
 
 

@@ -78,7 +78,9 @@ def root_axes_and_radii(points: np.ndarray, heights: np.ndarray, roots_xy: np.nd
 
     points : (n, 3) plant points; heights : (n,) their height above the ground; roots_xy : (k, 2);
     ground_z : (k,) ground height under each root; height : plant height; fit_height : the fit uses the points
-    between 1 % and this fraction of the height; fallback : radius when the fit has too few points.
+    between 1 % and this fraction of the height; fallback : radius when no circle fits. The root is a density
+    centroid, inside the stem's cross-section: the fit is tried about the centre of the widest window's circle too
+    (:func:`reference_impl.common.roots.stem_radius`'s ``in_stem``).
     Returns ``base (k, 3)`` (the root on the ground, moved onto the fitted axis), ``axis (k, 3)`` (unit, upward) and
     ``radius (k,)``.
     """
@@ -92,7 +94,8 @@ def root_axes_and_radii(points: np.ndarray, heights: np.ndarray, roots_xy: np.nd
     length = (fit_height - 0.01) * height
     for r in range(k):
         reach = min(0.1 * height, half_gap[r])
-        fit = stem_radius(points, base[r] + up * 0.01 * height, up, length=length, max_radius=reach, fallback=None)
+        fit = stem_radius(points, base[r] + up * 0.01 * height, up, length=length, max_radius=reach, fallback=None,
+                          in_stem=True)
         if fit is None:  # no circle: a vertical stem of the fallback radius
             continue
         rad, centre = fit
@@ -109,7 +112,7 @@ def root_axes_and_radii(points: np.ndarray, heights: np.ndarray, roots_xy: np.nd
                 axes[r] = ax / np.linalg.norm(ax)
                 start = np.r_[centre[:2], base[r, 2]]
                 rad, centre = stem_radius(points, start + axes[r] * 0.01 * height, axes[r], length=length,
-                                          max_radius=reach, fallback=fallback)
+                                          max_radius=reach, fallback=fallback, in_stem=True)
         radii[r] = rad
         # the root sits on the ground under the fitted axis
         c = centre - axes[r] * 0.01 * height

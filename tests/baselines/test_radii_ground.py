@@ -125,6 +125,32 @@ def test_stem_radius_from_a_point_on_the_bark_of_a_thick_trunk(rng):
     np.testing.assert_allclose(radii, 0.02, atol=0.003)
 
 
+def test_stem_radius_from_a_centroid_inside_a_thick_trunk(rng):
+    """A 0.26 m trunk whose bark the capture saw densely on one side only, with a 2 cm sucker standing beside it:
+    a density centroid of its base lies inside the ring but off the axis, where the windows close on the sucker (guo
+    on wp_weeping_willow-2: 8 cm for 26); with in_stem the fit is tried about the widest window's circle too and
+    finds the trunk. A base outside the trunk is not given the trunk's circle."""
+    from reference_impl.common.roots import stem_radius
+
+    dense = rng.uniform(-0.5, 0.9, 6000)  # most of the points on a quarter of the bark
+    thin = rng.uniform(0, 2 * np.pi, 1500)
+    a = np.r_[dense, thin]
+    pts = np.c_[0.26 * np.cos(a), 0.26 * np.sin(a), rng.uniform(0, 0.5, len(a))] + rng.normal(0, 0.003, (len(a), 3))
+    centroid = np.r_[pts[:, :2].mean(0), 0.0]
+    b = rng.uniform(0, 2 * np.pi, 800)
+    sucker = np.c_[centroid[0] + 0.02 * np.cos(b), centroid[1] + 0.02 * np.sin(b), rng.uniform(0, 0.5, 800)]
+    pts = np.r_[pts, sucker]
+    assert 0.1 < np.hypot(*centroid[:2]) < 0.26  # inside the ring, well off the axis
+    up = np.array([0, 0, 1.0])
+    r_plain, _ = stem_radius(pts, centroid, up, length=0.4, max_radius=0.9, fallback=0.01)
+    r, centre = stem_radius(pts, centroid, up, length=0.4, max_radius=0.9, fallback=0.01, in_stem=True)
+    assert abs(r - 0.26) < 0.015 and np.hypot(*centre[:2]) < 0.02
+    assert abs(r_plain - 0.26) > 0.05
+    outside = np.array([0.9, 0.0, 0.0])
+    r_out, _ = stem_radius(pts, outside, up, length=0.4, max_radius=0.5, fallback=0.01, in_stem=True)
+    assert abs(r_out - 0.26) > 0.05
+
+
 def _tapering_stem(rng, height, r_of_z, n=20000, arc=2 * np.pi):
     """Points on the bark of a vertical stem whose radius at height z is r_of_z(z), over ``arc`` of its directions
     (a one-station scan sees half), plus a skeleton along its axis."""
