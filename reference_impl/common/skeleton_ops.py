@@ -26,8 +26,8 @@ from plantbench.geometry.vectors import depths, levels, unit
 from reference_impl.common.graph import children_csr, edge_lengths, subtree_lengths
 
 __all__ = ["remove_nodes", "prune_by_ratio", "spatial_merge", "merge_siblings", "remove_chain_nodes",
-           "remove_degree2", "prune_short_tips", "merge_close_forks", "simplify", "hermite_smooth", "turn_angles",
-           "branch_orders"]
+           "remove_degree2", "prune_short_tips", "trim_unsupported_tips", "merge_close_forks", "simplify",
+           "hermite_smooth", "turn_angles", "branch_orders"]
 
 
 def remove_nodes(parents: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -287,6 +287,25 @@ def merge_close_forks(positions: np.ndarray, parents: np.ndarray, min_length: fl
         pos, alive = pos[~drop], alive[~drop]
     keep = np.zeros(len(parents), bool)
     keep[alive] = True
+    return keep
+
+
+def trim_unsupported_tips(parents: np.ndarray, distance: np.ndarray, max_distance: float) -> np.ndarray:
+    """(n,) keep mask without the unsupported ends of the branches: from each tip, the nodes farther than
+    ``max_distance`` from the data (``distance``: (n,) each node's distance to it) are removed back along the tip's
+    chain, up to the first node within it; a junction stays while another branch hangs from it, and a root always
+    stays. A branch with no supported node at all goes back to its junction."""
+    par = np.asarray(parents, np.int64)
+    n = len(par)
+    nchild = np.bincount(par[par >= 0], minlength=n)
+    far = np.asarray(distance, float) > max_distance
+    keep = np.ones(n, bool)
+    for tip in np.flatnonzero(nchild == 0):
+        v = int(tip)
+        while par[v] >= 0 and far[v] and nchild[v] == 0:
+            keep[v] = False
+            v = int(par[v])
+            nchild[v] -= 1
     return keep
 
 

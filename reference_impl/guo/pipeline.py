@@ -35,11 +35,11 @@ from scipy.spatial import cKDTree
 from plantbench.geometry import vectors
 from plantbench.plant import Leaf, Skeleton, TriMesh
 from reference_impl.common.geometry import branch_mesh
-from reference_impl.common.graph import median_spacing, voxel_downsample
+from reference_impl.common.graph import edge_lengths, median_spacing, voxel_downsample
 from reference_impl.common.ground import Ground
 from reference_impl.common.inputs import plant_height, split_ground
 from reference_impl.common.roots import breast_height_scale, refuse_implausible_radii
-from reference_impl.common.skeleton_ops import branch_orders, simplify
+from reference_impl.common.skeleton_ops import branch_orders, remove_nodes, simplify, trim_unsupported_tips
 from reference_impl.guo.growth import allometric_radii, grow
 from reference_impl.guo.hull import crown_mask, poisson_disk_in_hull, shell_ratio
 from reference_impl.guo.leaves import LeafConfig, PlacedLeaves, place_leaves
@@ -390,9 +390,16 @@ def model(prep: Prepared, prior: SpeciesPrior, params: GuoParams, rng: np.random
                                           prune_tips=min(params.prune_tips * ell, params.prune_cap * prep.height),
                                           merge_forks=params.merge_forks * ell)
         glat = glat[kept]
+    cloud_tree = cKDTree(prep.plant)
+    trimmed = 0.0
+    if params.trim_tips > 0:  # shoots that grew on past the data, trimmed back to it
+        data = cloud_tree if prep.hull_samples == 0 else cKDTree(np.r_[prep.plant, prep.markers[-prep.hull_samples:]])
+        keep = trim_unsupported_tips(gpar, data.query(gpos)[0], params.trim_tips * ell)
+        trimmed = float(edge_lengths(gpos, gpar)[~keep].sum())
+        gpar, _ = remove_nodes(gpar, keep)
+        gpos, grad, glat = gpos[keep], grad[keep], glat[keep]
     t0 = time.perf_counter()
     placed, turned, dropped, replaced_, off_cloud = 0, 0, {"unsupported": 0, "duplicates": 0}, 0, 0
-    cloud_tree = cKDTree(prep.plant)
     if fitted is not None:
         fitted, off_cloud = supported_fitted(fitted, cloud_tree, prep.spacing, params.leaf_support)
     if fitted is None or merge:
@@ -432,7 +439,8 @@ def model(prep: Prepared, prior: SpeciesPrior, params: GuoParams, rng: np.random
     timings["mesh"] = time.perf_counter() - t0
     info = {
         "iterations": g.iterations, "growth_nodes": len(g.positions), "shed_nodes": g.shed_nodes,
-        "markers_left": g.markers_left, "nodes": len(pos), "leaves": len(leaves), "leaves_fitted": turned,
+        "markers_left": g.markers_left, "trimmed_length_m": trimmed, "nodes": len(pos), "leaves": len(leaves),
+        "leaves_fitted": turned,
         "leaves_placed": placed, "leaves_from_images": 0 if fitted is None else len(fitted[1]),
         "leaves_replaced": replaced_, "leaves_from_images_off_cloud": off_cloud, "leaves_unsupported": dropped["unsupported"],
         "leaves_duplicate": dropped["duplicates"],

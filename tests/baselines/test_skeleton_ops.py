@@ -133,3 +133,35 @@ def test_merge_close_forks_joins_forks_a_short_chain_apart():
     pos2 = np.array([[0, 0, 0], [0, 0, 0.01], [1, 0, 0.01], [0, 0, 1], [0, 1, 0.01]], float)
     par2 = np.array([-1, 0, 1, 1, 1])
     assert merge_close_forks(pos2, par2, 0.5).all()
+
+
+def test_trim_unsupported_tips_cuts_back_to_the_data_only():
+    """A Y: a trunk 0-1-2 forking at 2 into a left branch 3-4-5 whose last two nodes grew past the data and a right
+    branch 6-7 with no data at all, plus a supported twig 8 on node 4. Distances to the data are given per node: 5
+    goes, 4 stays though far (twig 8 hangs from it), the right branch goes back to the fork, which stays (the left
+    branch hangs from it); a root is never removed. Checked against a naive fixed point on a random tree."""
+    par = np.array([-1, 0, 1, 2, 3, 4, 2, 6, 4])
+    far = 1.0
+    dist = np.array([0.0, 0.0, 0.0, 0.0, 2.0, 3.0, 2.0, 2.0, 0.0])
+    keep = ops.trim_unsupported_tips(par, dist, far)
+    assert keep.tolist() == [True, True, True, True, True, False, False, False, True]
+    # without the supported twig, node 4 is a far tip once 5 is gone, and goes too
+    keep = ops.trim_unsupported_tips(par[:8], dist[:8], far)
+    assert keep.tolist() == [True, True, True, True, False, False, False, False]
+    # every node far: back to the root, which stays
+    assert ops.trim_unsupported_tips(np.array([-1, 0, 1]), np.full(3, 5.0), far).tolist() == [True, False, False]
+    # a naive per-tip walk agrees on a random tree
+    rng = np.random.default_rng(3)
+    n = 300
+    par = np.r_[-1, [rng.integers(0, i) for i in range(1, n)]]
+    dist = rng.uniform(0, 2, n)
+    keep = ops.trim_unsupported_tips(par, dist, far)
+    naive = np.ones(n, bool)
+    changed = True
+    while changed:  # remove any non-root node that is far and has no kept child, until none is left
+        changed = False
+        for v in range(1, n):
+            if naive[v] and dist[v] > far and not np.any(naive & (par == v)):
+                naive[v] = False
+                changed = True
+    assert keep.tolist() == naive.tolist()
