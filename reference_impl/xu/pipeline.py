@@ -171,14 +171,20 @@ def adjust_branch_angles(positions: np.ndarray, parents: np.ndarray, radii: np.n
     rad = list(radii)
     edge_of: dict[int, tuple[int, int]] = {}  # inserted node -> the original edge (upper, lower) it lies on
 
+    def chain_node(upper: int, lower: int, at: np.ndarray | None = None) -> int:
+        """The node of the edge (upper, lower)'s chain (``lower`` and the points inserted above it) just below
+        ``at``, or the chain's top when ``at`` is None."""
+        d = positions[lower] - positions[upper]
+        u = -np.inf if at is None else float((at - positions[upper]) @ d)
+        node = lower
+        while edge_of.get(par[node]) == (upper, lower) and float((pos[par[node]] - positions[upper]) @ d) > u:
+            node = par[node]
+        return node
+
     def insert(upper: int, lower: int, at: np.ndarray, r: float) -> int:
         """Insert a node at ``at`` (on the edge from ``upper`` down to ``lower``) into that edge's chain, in order
         along the edge; returns its index."""
-        d = positions[lower] - positions[upper]
-        u_new = float((at - positions[upper]) @ d)
-        below = lower
-        while edge_of.get(par[below]) == (upper, lower) and float((pos[par[below]] - positions[upper]) @ d) > u_new:
-            below = par[below]
+        below = chain_node(upper, lower, at)
         pos.append(at)
         par.append(int(par[below]))
         rad.append(r)
@@ -216,10 +222,7 @@ def adjust_branch_angles(positions: np.ndarray, parents: np.ndarray, radii: np.n
             else:  # on the main child's edge
                 s = insert(int(j), int(main), positions[j] + t * unit(positions[main] - positions[j]),
                            float(radii[main]))
-            top = int(c)  # the lateral moves to S with any point already inserted on its own edge
-            while edge_of.get(par[top]) == (int(j), int(c)):
-                top = par[top]
-            par[top] = s
+            par[chain_node(int(j), int(c))] = s  # the lateral moves to S with the points inserted on its edge
             adjusted += 1
             break  # one adjustment per split keeps the main axis intact
     return np.asarray(pos), np.asarray(par, np.int64), np.asarray(rad), adjusted
