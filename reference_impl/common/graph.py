@@ -4,6 +4,7 @@
 - :func:`knn_graph`, :func:`radius_graph`: symmetric sparse graphs weighted by Euclidean edge length.
 - :func:`bridge_components`: join every connected component to the rest with its shortest inter-component edge
   (Boruvka rounds, so at most ceil(log2 k) rounds for k components).
+- :func:`bridge_waypoints`: the points a bridge across a gap steps through (the cheapest path by squared step length).
 - :func:`shortest_path_tree`: multi-source Dijkstra (scipy.sparse.csgraph), the nearest root claims each vertex.
 - :func:`empty_segments`: which straight segments cross empty space (a point along them farther than a tolerance
   from every point of the cloud): the test behind issue 25's "no edge through empty space".
@@ -30,6 +31,7 @@ __all__ = [
     "median_spacing",
     "components",
     "bridge_components",
+    "bridge_waypoints",
     "shortest_path_tree",
     "subtree_sums",
     "subtree_lengths",
@@ -258,3 +260,28 @@ def empty_segments(a: np.ndarray, b: np.ndarray, tree: cKDTree, tolerance: float
     out = np.zeros(len(a), bool)
     np.logical_or.at(out, seg, far)
     return out
+
+
+def bridge_waypoints(points: np.ndarray, tree: cKDTree, free: np.ndarray, a: np.ndarray, b: np.ndarray
+                     ) -> np.ndarray:
+    """Indices of the points a bridge from ``a`` to ``b`` passes through, in order from a: the cheapest path from a to
+    b over the complete graph of a, b and the ``free`` points inside the ball with diameter ab, an edge costing its
+    squared length (so the path steps from point to point across a gap rather than jumping it). The ball bounds the
+    detour: a single waypoint beats the straight jump exactly when it lies inside it. Empty when the jump is
+    cheapest [S]."""
+    half = 0.5 * float(np.linalg.norm(b - a))
+    if half <= 0:
+        return np.zeros(0, np.int64)
+    cand = np.asarray(tree.query_ball_point(0.5 * (a + b), half), np.int64)
+    cand = np.sort(cand[free[cand]])
+    if len(cand) == 0:
+        return cand
+    xyz = np.concatenate([a[None], points[cand], b[None]])
+    cost = np.sum((xyz[:, None, :] - xyz[None, :, :]) ** 2, axis=2)
+    _, pred = csgraph.dijkstra(cost, directed=False, indices=0, return_predecessors=True)
+    path = []
+    v = pred[len(xyz) - 1]
+    while v > 0:
+        path.append(int(v))
+        v = pred[v]
+    return cand[np.asarray(path[::-1], np.int64) - 1]

@@ -9,8 +9,8 @@ re-implementation, [A] AdTree, [S] our choice; every length is scaled by the pla
    dropped, the others bridged by their shortest edges [S];
 3. roots: the lowest vertex of each central cluster of the bottom 2 % of the height, per separate plant [A, L:
    several roots allowed; S: the central and per-plant rules, reference_impl.common.roots.find_roots];
-4. shortest-path tree by multi-source Dijkstra [L]; a subtree hung by a bridge longer than its own length dropped
-   [S];
+4. shortest-path tree by multi-source Dijkstra [L]; a subtree hung by a bridge longer than its own length dropped,
+   the other bridges re-drawn through the dropped scraps between their ends [S];
 5. five outer iterations [G] of: vertex weights = supported subtree length [L, G, A]; the orientation field
    minimising sum w_pc^2 |o_p - o_c|^2 + w_c^2 |o_c - e_c|^2 (Groot's energy) solved as one sparse linear least
    squares and normalised [S: the cheap equivalent of Groot's sphere-constrained solve]; re-embedding of the
@@ -46,6 +46,7 @@ from plantbench.plant import Leaf, Skeleton, TriMesh
 from reference_impl.common.geometry import bezier_leaves, branch_mesh, leaf_frames
 from reference_impl.common.graph import (
     bridge_components,
+    bridge_waypoints,
     components,
     edge_lengths,
     knn_graph,
@@ -103,6 +104,10 @@ class LivnyParams:
     """A subtree hung from the shortest-path tree by a bridge (an edge the kNN graph does not have) is dropped when the
     bridge is longer than this times the subtree's own length: a fragment smaller than the gap it would be drawn
     across [S: docs/tuning/xu.md]. 0: none."""
+    bridge_waypoints: bool = True
+    """A bridge left in the tree steps through the dropped scraps' voxels between its ends (the cheapest path by squared
+    step length, :func:`reference_impl.common.graph.bridge_waypoints`) instead of jumping the gap straight: the scraps
+    of an occluded branch are too small to stand as branches, but they say where it runs [S: docs/tuning/xu.md]."""
     max_offset_voxels: float = 0.5
     """After each re-embedding, a vertex farther from the cloud than its pipe radius plus this many voxels is pulled
     back to that distance: the contraction moves vertices onto a branch's axis, never out of the data (on a sparse
@@ -300,7 +305,35 @@ def _shortest_path_forest(cloud: np.ndarray, ground: Ground, height: float, voxe
         tree_keep = _unbridged(cloud[kept], parents, max_edge, params.bridge_support)
         parents, _ = remove_nodes(parents, tree_keep)
         keep[kept[~tree_keep]] = False
-    return keep, parents, {"bridges": nbridges, "roots": len(roots), "scraps_and_unbridged": int(n - keep.sum())}
+    stats = {"bridges": nbridges, "roots": len(roots), "scraps_and_unbridged": int(n - keep.sum())}
+    if params.bridge_waypoints:
+        keep, parents, stats["bridge_waypoints"] = _route_bridges(cloud, keep, parents, max_edge)
+    return keep, parents, stats
+
+
+def _route_bridges(cloud: np.ndarray, keep: np.ndarray, parents: np.ndarray, max_edge: float
+                   ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Every bridge of the tree (an edge longer than ``max_edge``; ``parents`` over ``cloud[keep]``) re-drawn through
+    the dropped vertices between its ends (:func:`reference_impl.common.graph.bridge_waypoints`), which join the
+    tree as a chain. Returns the new ``keep``, the parents over ``cloud[keep]`` and the number of vertices added."""
+    kept = np.flatnonzero(keep)
+    up = np.full(len(cloud), -1, np.int64)  # parents as cloud indices
+    up[kept] = np.where(parents >= 0, kept[np.maximum(parents, 0)], -1)
+    free = ~keep
+    tree = cKDTree(cloud)
+    added = 0
+    for c in kept[edge_lengths(cloud[kept], parents) > max_edge * (1 + 1e-9)]:
+        prev = up[c]
+        for w in bridge_waypoints(cloud, tree, free, cloud[prev], cloud[c]):
+            up[w], free[w], prev = prev, False, w
+            added += 1
+        up[c] = prev
+    if added == 0:
+        return keep, parents, 0
+    keep = ~free
+    index = np.cumsum(keep) - 1
+    par = up[keep]
+    return keep, np.where(par >= 0, index[np.maximum(par, 0)], -1), added
 
 
 def _unbridged(cloud: np.ndarray, parents: np.ndarray, max_edge: float, support: float) -> np.ndarray:

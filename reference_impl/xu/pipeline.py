@@ -74,6 +74,10 @@ class XuParams:
     """Bi-directional probing cone, half-angle (Table I, section 4.2: slightly above the mean axil angle)."""
     max_gap: float = 2.0
     """Largest gap bridged by probing at 20 m (Table I, section 4.2)."""
+    bridge_waypoints: bool = True
+    """A probed join (segment PQ) steps through the scan's free points between Q and P (the cheapest path by squared
+    step length, :func:`reference_impl.xu.skeleton.bridge_waypoints`) instead of jumping the gap straight: on a
+    sparse scan an occluded branch leaves scattered returns too small to join as subgraphs [S: docs/tuning/xu.md]."""
     probe_height_fraction: float = 2.0 / 3.0
     """Only nodes with shortest path below this fraction of the height probe (section 4.2)."""
     prune_tip_bins: float = 3.0
@@ -262,7 +266,7 @@ def _scanned_skeleton(cloud: np.ndarray, cloud_height: np.ndarray, height: float
     main = bin_skeleton(cloud, graph, np.flatnonzero(in_main), roots, width)
     stats = {"subgraphs": int(ncomp), "roots": len(roots), "main_nodes": len(main.positions)}
     probe = dict(width=width, cone_deg=params.cone_angle_deg, gap=gap,
-                 max_geodesic=params.probe_height_fraction * height)
+                 max_geodesic=params.probe_height_fraction * height, waypoints=params.bridge_waypoints)
     ext, attached, joined = probe_extend(cloud, graph, labels, main, in_main, **probe)
     z = ext.positions[:, 2] - cloud_height.min() if len(ext.positions) else np.zeros(1)
     if z.max() - z.min() < params.stem_gap_share * height:  # a gap in the stem's scan stopped the skeleton

@@ -12,6 +12,7 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from plantbench.geometry.vectors import unit
+from reference_impl.common.graph import bridge_waypoints
 
 __all__ = ["BinSkeleton", "bin_skeleton", "probe_extend"]
 
@@ -156,8 +157,8 @@ def _append(pos: list, par: list, geo: list, point_node: np.ndarray, sub: BinSke
 
 def probe_extend(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray, main: BinSkeleton,
                  attached: np.ndarray, *, width: float, cone_deg: float, gap: float, max_geodesic: float,
-                 min_nodes: int = 2, tangent_nodes: int = 3, persistent: bool = False, large_share: float = 0.1
-                 ) -> tuple[BinSkeleton, np.ndarray, int]:
+                 min_nodes: int = 2, tangent_nodes: int = 3, persistent: bool = False, large_share: float = 0.1,
+                 waypoints: bool = False) -> tuple[BinSkeleton, np.ndarray, int]:
     """Section 4.2: breadth-first over the skeleton; at each node with geodesic distance below ``max_geodesic`` a
     cone (half-angle ``cone_deg``, along parent -> node) looks for the nearest point of an unattached subgraph G
     within ``gap``; G's own bin skeleton is built from that point P; a cone from P along the tangent T (from G's
@@ -173,6 +174,9 @@ def probe_extend(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray, m
     the points joins at the probing node even when the backward probe misses: the backward probe guards against
     joining noise, and a crown that a gap in the stem cut off is not noise, but its tangent at P follows whichever
     branch P lies on.
+    ``waypoints``: the segment PQ passes through the free points (in no joined subgraph) between Q and P, in order
+    (:func:`reference_impl.common.graph.bridge_waypoints`): the scattered returns of a branch that occlusion left in pieces too small to join on
+    their own [S].
     Each node probes once, so the loop is bounded by the final node count. Returns the extended skeleton, the
     updated ``attached`` mask and the number of subgraphs joined.
     """
@@ -216,6 +220,16 @@ def probe_extend(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray, m
                 break
         if q_node < 0:
             continue
+        if waypoints:  # the segment PQ steps through the free points in the gap
+            free = ~attached
+            free[members] = False
+            for w in bridge_waypoints(points, tree, free, pos[q_node], p_pos):
+                geo.append(geo[q_node] + float(np.linalg.norm(points[w] - pos[q_node])))
+                pos.append(points[w])
+                par.append(q_node)
+                q_node = len(pos) - 1
+                point_node[w] = q_node
+                attached[w] = True
         queue.extend(_append(pos, par, geo, point_node, sub, q_node, p_pos))
         attached[members] = True
         joined += 1

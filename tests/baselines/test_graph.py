@@ -1,13 +1,17 @@
 """reference_impl.common.graph against brute-force computations."""
 
+import itertools
+
 import numpy as np
 import pytest
 from scipy.sparse import csgraph
+from scipy.spatial import cKDTree
 
 from plantbench.errors import InputError
 from plantbench.geometry.vectors import depths
 from reference_impl.common.graph import (
     bridge_components,
+    bridge_waypoints,
     children_csr,
     knn_graph,
     radius_graph,
@@ -63,6 +67,43 @@ def test_bridge_components_joins_blobs_with_their_closest_pair(rng):
     # the a-b bridge is the closest a-b pair (brute force)
     dab = np.linalg.norm(a[:, None] - b[None], axis=2)
     assert np.isclose(g2[:60, 60:120].max(), dab.min())
+
+
+def _cheapest_by_enumeration(a, b, pts):
+    """Every ordered subset of ``pts`` as a path from a to b, the one with the least sum of squared steps."""
+    best, best_path = np.sum((b - a) ** 2), ()
+    for k in range(1, len(pts) + 1):
+        for path in itertools.permutations(range(len(pts)), k):
+            xyz = np.concatenate([a[None], pts[list(path)], b[None]])
+            cost = np.sum(np.diff(xyz, axis=0) ** 2)
+            if cost < best - 1e-12:
+                best, best_path = cost, path
+    return best_path
+
+
+def test_bridge_waypoints_match_an_enumeration_of_every_path(rng):
+    a, b = np.zeros(3), np.array([1.0, 0, 0])
+    hits = 0
+    for _ in range(30):
+        pts = rng.uniform([-0.1, -0.4, -0.4], [1.1, 0.4, 0.4], (7, 3))
+        free = rng.random(7) < 0.8
+        got = bridge_waypoints(pts, cKDTree(pts), free, a, b)
+        free_idx = np.flatnonzero(free & (np.linalg.norm(pts - [0.5, 0, 0], axis=1) <= 0.5))
+        expect = free_idx[list(_cheapest_by_enumeration(a, b, pts[free_idx]))]
+        np.testing.assert_array_equal(got, expect)
+        hits += len(got) > 1
+    assert hits > 5  # multi-step paths were compared, not only jumps
+
+
+def test_bridge_waypoints_step_through_a_gap_in_order(rng):
+    a, b = np.zeros(3), np.array([0.0, 0, 1.0])
+    on_axis = np.c_[rng.normal(0, 0.01, (5, 2)), [0.8, 0.2, 0.6, 0.4, 0.9]]
+    aside = np.array([[0.45, 0, 0.5], [0, 0, 1.3]])  # off the way, and outside the ball
+    pts = np.concatenate([on_axis, aside])
+    got = bridge_waypoints(pts, cKDTree(pts), np.ones(len(pts), bool), a, b)
+    np.testing.assert_array_equal(got, [1, 3, 2, 0, 4])  # z 0.2, 0.4, 0.6, 0.8, 0.9
+    assert len(bridge_waypoints(pts, cKDTree(pts), np.zeros(len(pts), bool), a, b)) == 0
+    assert len(bridge_waypoints(pts, cKDTree(pts), np.ones(len(pts), bool), a, a)) == 0
 
 
 def test_shortest_path_tree_is_consistent(rng):

@@ -6,7 +6,7 @@ from scipy.spatial import cKDTree
 
 from reference_impl.common.graph import knn_graph, median_spacing
 from reference_impl.common.roots import find_roots, stem_radii
-from reference_impl.livny.bsg import _stay_near, _unbridged
+from reference_impl.livny.bsg import _route_bridges, _stay_near, _unbridged
 
 
 def _stem_and_crown(rng, stem_xy=(0.0, 0.0)):
@@ -64,6 +64,33 @@ def test_fragments_smaller_than_their_bridge_are_dropped():
     np.testing.assert_array_equal(keep, expect)
     # a stricter rule (fragments 3x their bridge) drops the 9-long fragment behind its 4-long bridge too
     assert not _unbridged(cloud, parents, max_edge=1.5, support=0.3)[22:].any()
+
+
+def test_livny_bridges_step_through_the_dropped_scraps():
+    cloud, parents = _bridged_tree()
+    keep = _unbridged(cloud, parents, max_edge=1.5, support=1.0)
+    kept = np.flatnonzero(keep)
+    par = parents[kept]
+    par = np.where(par >= 0, np.searchsorted(kept, np.maximum(par, 0)), -1)
+    # scraps dropped before the bridging: two on the way of the 4-long bridge (0,0,0) -> (0,4,0), one beside it
+    scraps = np.array([[0.0, 2.6, 0.1], [0.0, 1.2, -0.1], [3.0, 2.0, 0.0]])
+    cloud2 = np.concatenate([cloud, scraps])
+    keep2 = np.r_[keep, False, False, False]
+    new_keep, new_par, added = _route_bridges(cloud2, keep2, par, max_edge=1.5)
+    assert added == 2
+    np.testing.assert_array_equal(new_keep, np.r_[keep, True, True, False])
+    pos = cloud2[new_keep]
+    # a tree still, with the fragment's base now hung from the chain 0 -> (0,1.2) -> (0,2.6) -> fragment
+    assert (new_par < 0).sum() == 1 and np.all(new_par < len(pos))
+    chain = [int(np.flatnonzero(np.all(pos == [0.0, 4.0, 0.0], axis=1))[0])]
+    while new_par[chain[-1]] >= 0:
+        chain.append(int(new_par[chain[-1]]))
+    np.testing.assert_allclose(pos[chain], [[0, 4, 0], [0, 2.6, 0.1], [0, 1.2, -0.1], [0, 0, 0]])
+    # every other vertex keeps its parent
+    old = {tuple(cloud[k]): (tuple(cloud[parents[k]]) if parents[k] >= 0 else None) for k in kept}
+    for v, p in enumerate(new_par):
+        if tuple(pos[v]) in old and tuple(pos[v]) != (0.0, 4.0, 0.0):
+            assert (tuple(pos[p]) if p >= 0 else None) == old[tuple(pos[v])]
 
 
 def test_stay_near_pulls_far_vertices_back_to_the_limit(rng):

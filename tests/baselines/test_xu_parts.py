@@ -67,6 +67,29 @@ def test_probing_joins_a_subgraph_across_a_gap(rng):
     assert joined2 == 0 and not attached2[~main_mask].any()
 
 
+def test_probing_steps_through_the_returns_in_a_gap(rng):
+    stem = _line(0, 1, 100, rng)
+    upper = _line(1.4, 2.0, 70, rng)
+    stones = np.array([[0.01, 0.0, 1.13], [-0.01, 0.0, 1.26]])  # two lone returns in the 40 cm gap
+    pts = np.vstack([stem, upper, stones])
+    g = radius_graph(pts, 0.05)
+    _, lab = csgraph.connected_components(g, directed=False)
+    main_mask = lab == lab[0]
+    main = bin_skeleton(pts, g, np.flatnonzero(main_mask), np.array([0]), 0.05)
+    kw = dict(width=0.05, cone_deg=45, gap=0.5, max_geodesic=10.0)
+    for waypoints in (False, True):
+        ext, attached, joined = probe_extend(pts, g, lab, main, main_mask, waypoints=waypoints, **kw)
+        assert joined == 1 and ext.positions[:, 2].max() > 1.9
+        d = np.linalg.norm(ext.positions[:, None] - stones[None], axis=2).min(axis=0)
+        if waypoints:  # both returns are nodes of the join, in order up the gap, and count as explained
+            assert np.all(d < 1e-12) and attached[-2:].all()
+            i, j = (int(np.argmin(np.linalg.norm(ext.positions - s, axis=1))) for s in stones)
+            assert ext.parents[j] == i and ext.positions[ext.parents[i], 2] < 1.13
+            assert np.all(ext.geodesic[ext.parents >= 0] > ext.geodesic[ext.parents[ext.parents >= 0]])
+        else:  # the straight join passes them by
+            assert np.all(d > 1e-3) and not attached[-2:].any()
+
+
 def test_similarity_transform_is_exact_for_similar_triangles(rng):
     src = rng.random((3, 3))
     q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
