@@ -141,11 +141,10 @@ def _back_probe(pos: list, par: list, geo: list, p_pos: np.ndarray, tangent: np.
 
 
 def _append(pos: list, par: list, geo: list, point_node: np.ndarray, sub: BinSkeleton, q_node: int,
-            p_pos: np.ndarray) -> range:
-    """Append the subgraph's skeleton ``sub`` to the lists, its root hanging from ``q_node`` (geodesic distances
-    continue through P); its points' nodes are renumbered in ``point_node``. Returns the new nodes."""
+            base_geo: float) -> range:
+    """Append the subgraph's skeleton ``sub`` to the lists, its root hanging from ``q_node``, geodesic distances
+    continuing from ``base_geo`` (P's); its points' nodes are renumbered in ``point_node``. Returns the new nodes."""
     off = len(pos)
-    base_geo = geo[q_node] + float(np.linalg.norm(p_pos - pos[q_node]))
     for i in range(len(sub.positions)):
         pos.append(sub.positions[i])
         par.append(off + int(sub.parents[i]) if sub.parents[i] >= 0 else q_node)
@@ -220,17 +219,18 @@ def probe_extend(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray, m
                 break
         if q_node < 0:
             continue
-        if waypoints:  # the segment PQ steps through the free points in the gap
-            free = ~attached
+        q_pos, base_geo = pos[q_node], geo[q_node] + float(np.linalg.norm(p_pos - pos[q_node]))
+        if waypoints:  # the segment PQ steps through the free points in the gap; geodesic distances still run
+            free = ~attached  # along PQ, so the detour does not end the probing (max_geodesic) any earlier
             free[members] = False
-            for w in bridge_waypoints(points, tree, free, pos[q_node], p_pos):
-                geo.append(geo[q_node] + float(np.linalg.norm(points[w] - pos[q_node])))
+            for w in bridge_waypoints(points, tree, free, q_pos, p_pos):
+                geo.append(base_geo - float(np.linalg.norm(p_pos - points[w])))
                 pos.append(points[w])
                 par.append(q_node)
                 q_node = len(pos) - 1
                 point_node[w] = q_node
                 attached[w] = True
-        queue.extend(_append(pos, par, geo, point_node, sub, q_node, p_pos))
+        queue.extend(_append(pos, par, geo, point_node, sub, q_node, base_geo))
         attached[members] = True
         joined += 1
     out = BinSkeleton(np.asarray(pos), np.asarray(par, np.int64), np.asarray(geo), point_node)
