@@ -2,17 +2,12 @@ import subprocess
 import sys
 
 
-def test_import_is_light_and_fast():
+def test_import_is_light():
+    """``import plantbench`` (the CLI's start-up) pulls in none of the heavy libraries; how long it takes is measured
+    in bench/test_bench_import.py, beside numpy and scipy alone."""
     code = (
-        "import time, sys; t = time.perf_counter(); import plantbench; import plantbench.registry, plantbench.schemas;"
-        "dt = time.perf_counter() - t;"
-        "heavy = [m for m in ('mitsuba', 'drjit', 'open3d', 'pycolmap', 'cv2', 'skimage') if m in sys.modules];"
-        "print(dt, heavy)"
-    )
-    best = min(
-        float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()[0])
-        for _ in range(3)
+        "import sys; import plantbench; import plantbench.registry, plantbench.schemas;"
+        "print([m for m in ('mitsuba', 'drjit', 'open3d', 'pycolmap', 'cv2', 'skimage') if m in sys.modules])"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert out.strip().endswith("[]"), out
-    assert best < 0.5, best
+    assert out.strip() == "[]", out
