@@ -330,10 +330,7 @@ def _route_bridges(cloud: np.ndarray, keep: np.ndarray, parents: np.ndarray, max
         up[c] = prev
     if added == 0:
         return keep, parents, 0
-    keep = ~free
-    index = np.cumsum(keep) - 1
-    par = up[keep]
-    return keep, np.where(par >= 0, index[np.maximum(par, 0)], -1), added
+    return ~free, remove_nodes(up, ~free)[0], added
 
 
 def _unbridged(cloud: np.ndarray, parents: np.ndarray, max_edge: float, support: float) -> np.ndarray:

@@ -174,8 +174,8 @@ def probe_extend(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray, m
     joining noise, and a crown that a gap in the stem cut off is not noise, but its tangent at P follows whichever
     branch P lies on.
     ``waypoints``: the segment PQ passes through the free points (in no joined subgraph) between Q and P, in order
-    (:func:`reference_impl.common.graph.bridge_waypoints`): the scattered returns of a branch that occlusion left in pieces too small to join on
-    their own [S].
+    (:func:`reference_impl.common.graph.bridge_waypoints`): the scattered returns of a branch that occlusion left in
+    pieces too small to join on their own [S].
     Each node probes once, so the loop is bounded by the final node count. Returns the extended skeleton, the
     updated ``attached`` mask and the number of subgraphs joined.
     """
