@@ -10,6 +10,7 @@ import html
 import os
 import shutil
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -18,6 +19,9 @@ from plantbench.io.atomic import atomic_write
 from plantbench.metrics.info import HEADLINE, HEADLINE_FIDELITY
 from plantbench.report.gate import read_results, read_run_meta
 from plantbench.report.tables import KEY_METRICS, aggregate, format_value, metric_info
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["FORMATS", "wide_table", "headline_table", "comparison_table", "render_table", "write_report",
            "family_ranking", "family_study", "distance_figure", "leaf_figure", "calibration_note"]
@@ -317,6 +321,22 @@ def structure_note(ladder) -> str:
             f"{(s['prior-a'] + s['prior-b']) / 2:.2f}).")
 
 
+def sweep_values(labels: pd.Series) -> pd.Series:
+    """The x values of a sweep's levels: the labels as numbers; else the first number in each label, when that tells
+    the levels apart ('512px' -> 512, a suite's ``[sweep] labels``); else the levels' order of first appearance."""
+    import pandas as pd
+
+    value = pd.to_numeric(labels, errors="coerce")
+    if value.notna().all():
+        return value.astype(float)
+    text = labels.astype(str)
+    value = pd.to_numeric(text.str.extract(r"([-+]?\d*\.?\d+(?:[eE][-+]?\d+)?)")[0], errors="coerce")
+    if value.notna().all() and value.groupby(text).nunique().max() == 1 and value.nunique() == text.nunique():
+        return value.astype(float)
+    order = {label: float(k) for k, label in enumerate(pd.unique(text))}
+    return text.map(order).astype(float)
+
+
 def _figures(table, folder: Path, sweep: str | None = None) -> list[Path]:
     """Bar chart per key metric (mean with 95 % CI per method), and sweep curves."""
     import matplotlib
@@ -352,7 +372,7 @@ def _figures(table, folder: Path, sweep: str | None = None) -> list[Path]:
         plt.close(fig)
     if "sweep" in table.columns and table["sweep"].notna().any():
         sw = table[table["sweep"].notna()].copy()
-        sw["sweep_value"] = sw["sweep"].astype(float)
+        sw["sweep_value"] = sweep_values(sw["sweep"])
         sagg = aggregate(sw, ("method", "sweep_value"))
         finite = set(sagg.loc[np.isfinite(sagg["mean"]), "metric"])
         metrics = [m for m in KEY_METRICS if m in finite] or sorted(finite)[:4]
