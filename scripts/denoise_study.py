@@ -89,17 +89,22 @@ def main() -> None:
     plant, _ = read_plant(a.case)
     surface = np.concatenate([plant.branch_mesh.vertices, plant.leaf_mesh.vertices])
     settings = [(a.reference_spp, False)] + [(int(s), d == "1") for s, d in (x.split(":") for x in a.settings.split(","))]
+    o = CaptureOptions(views=a.views, width=a.size, height=a.size, scan=False)
+    cams = place_cameras(surface, o.views, elevation=o.elevation, fov_x_deg=o.fov_deg, width=o.width,
+                         height=o.height, fill=o.fill)
+    # the scene differs between settings only in its integrator (the denoising guides); the render takes its spp
+    scenes: dict[bool, object] = {}
     images, seconds = [], []
     maps = None
     for spp, denoise in settings:
-        o = CaptureOptions(views=a.views, width=a.size, height=a.size, spp=spp, denoise=denoise, scan=False)
-        cams = place_cameras(surface, o.views, elevation=o.elevation, fov_x_deg=o.fov_deg, width=o.width,
-                             height=o.height, fill=o.fill)
-        d = scene_dict(plant, cams, o, rng(a.seed, "capture", "scene"), mi=mi)
-        scene = mi.load_dict(d)
-        if maps is None:
-            maps = exact_maps(cams[a.view], ground_truth_mesh(plant), ground_truth_caster(plant, scene=scene,
-                                                                                        scene_dict=d))
+        if denoise not in scenes:
+            d = scene_dict(plant, cams, o.model_copy(update={"denoise": denoise}), rng(a.seed, "capture", "scene"),
+                           mi=mi)
+            scenes[denoise] = mi.load_dict(d)
+            if maps is None:
+                maps = exact_maps(cams[a.view], ground_truth_mesh(plant),
+                                  ground_truth_caster(plant, scene=scenes[denoise], scene_dict=d))
+        scene = scenes[denoise]
         t0 = time.perf_counter()
         img = to_srgb8(render_colour(scene, a.view, spp=spp, seed=a.seed + a.view, mi=mi))
         seconds.append(time.perf_counter() - t0)

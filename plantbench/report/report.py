@@ -331,7 +331,7 @@ def sweep_values(labels: pd.Series) -> pd.Series:
         return value.astype(float)
     text = labels.astype(str)
     value = pd.to_numeric(text.str.extract(r"([-+]?\d*\.?\d+(?:[eE][-+]?\d+)?)")[0], errors="coerce")
-    if value.notna().all() and value.groupby(text).nunique().max() == 1 and value.nunique() == text.nunique():
+    if value.notna().all() and value.nunique() == text.nunique():
         return value.astype(float)
     order = {label: float(k) for k, label in enumerate(pd.unique(text))}
     return text.map(order).astype(float)
