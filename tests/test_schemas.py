@@ -99,3 +99,26 @@ def test_sweep_labels_name_levels_that_share_a_value():
         Suite.model_validate({**base, "sweep": {**sweep, "labels": None}})
     with pytest.raises(ValidationError, match="2 labels for 3"):
         Suite.model_validate({**base, "sweep": {**sweep, "labels": ["a", "b"]}})
+
+
+def test_sweep_linked_default_leaves_the_setting_alone():
+    """A linked "default" sets nothing at its level: that level's settings, and so its method jobs' cache keys, are
+    those of the sweep without the linked setting; the other levels get the value."""
+    from plantbench.runner.plan import make_plan
+
+    base = {"name": "s", "description": "d", "methods": ["mvs"], "cases": [{"species": "laurel", "seeds": [1]}],
+            "method_options": {"mvs": {"depth_params__background_span": 0.5}}}
+    two = {"parameter": "capture.width", "values": [512, 1024], "labels": ["512", "1024"]}
+    three = {"parameter": "capture.width", "values": [512, 1024, 1024], "labels": ["512", "1024", "1024-at-512"],
+             "linked": {"method_options.mvs.max_size": ["default", "default", 512]}}
+    levels = Suite.model_validate({**base, "sweep": three}).sweep.levels()
+    assert levels[0][1] == {"capture.width": 512} and levels[2][1] == {"capture.width": 1024,
+                                                                       "method_options.mvs.max_size": 512}
+
+    def mvs_keys(sweep):
+        plan = make_plan(Suite.model_validate({**base, "sweep": sweep}), ["mvs"])
+        return {key for key, j in plan.jobs.items() if j.kind != "capture" and j.params.get("method") == "mvs"}
+
+    keys2, keys3 = mvs_keys(two), mvs_keys(three)
+    assert len(keys2) == 2 and len(keys3) == 3
+    assert keys2 < keys3  # the two old levels' mvs jobs are the same jobs, the new level adds one
