@@ -151,16 +151,10 @@ class CaptureSettings(Strict):
         return self
 
 
-LEAVE_DEFAULT = "default"
-"""A :class:`Sweep`'s linked value that leaves the setting at its level as the suite has it."""
-
-
 class Sweep(Strict):
     """Repeat the suite over values of one setting: ``parameter`` is a dotted path into the suite, e.g.
     ``"capture.views"`` or ``"method_options.mvs.noise"``. ``linked`` settings follow it, one value per sweep value
-    (e.g. a scanner's registration error growing with its beam spacing); the swept value names the level. A linked
-    value ``"default"`` leaves that setting alone at its level (the suite's own value, else the default), so a level
-    added for one setting keeps the other levels' settings, and their cache keys, as they were."""
+    (e.g. a scanner's registration error growing with its beam spacing); the swept value names the level."""
 
     parameter: str
     values: list[float | int | str] = Field(min_length=1)
@@ -186,10 +180,9 @@ class Sweep(Strict):
 
     def levels(self) -> list[tuple[Any, dict[str, Any]]]:
         """(level name: the label, or the sweep value, {dotted setting: value}) per level, the swept parameter
-        first; a linked ``"default"`` is left out of its level's settings."""
+        first."""
         names = self.labels if self.labels is not None else self.values
-        return [(names[i], {self.parameter: v, **{k: vals[i] for k, vals in self.linked.items()
-                                                  if vals[i] != LEAVE_DEFAULT}})
+        return [(names[i], {self.parameter: v, **{k: vals[i] for k, vals in self.linked.items()}})
                 for i, v in enumerate(self.values)]
 
 

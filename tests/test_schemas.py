@@ -111,9 +111,12 @@ def test_sweep_linked_default_leaves_the_setting_alone():
     two = {"parameter": "capture.width", "values": [512, 1024], "labels": ["512", "1024"]}
     three = {"parameter": "capture.width", "values": [512, 1024, 1024], "labels": ["512", "1024", "1024-at-512"],
              "linked": {"method_options.mvs.max_size": ["default", "default", 512]}}
-    levels = Suite.model_validate({**base, "sweep": three}).sweep.levels()
-    assert levels[0][1] == {"capture.width": 512} and levels[2][1] == {"capture.width": 1024,
-                                                                       "method_options.mvs.max_size": 512}
+    plan = make_plan(Suite.model_validate({**base, "sweep": three}), ["mvs"])
+    options = sorted((sorted(j.params["options"].items()) for j in plan.jobs.values()
+                      if j.kind != "capture" and j.params.get("method") == "mvs"), key=len)
+    assert options == [[("depth_params__background_span", 0.5)]] * 2 + [[("depth_params__background_span", 0.5),
+                                                                          ("max_size", 512)]]
+    assert {c.case for c in plan.cells} == {"laurel-1@512", "laurel-1@1024", "laurel-1@1024-at-512"}
 
     def mvs_keys(sweep):
         plan = make_plan(Suite.model_validate({**base, "sweep": sweep}), ["mvs"])

@@ -134,6 +134,11 @@ def _method_code_hash(method: Any) -> str:
     return code_hash(str(root.parent if root.is_file() and (root.parent / "__init__.py").exists() else root))
 
 
+LEAVE_DEFAULT = "default"
+"""A sweep's linked value that leaves its setting alone at that level (the suite's own value, else the default):
+a level added for one setting keeps the other levels' settings, and so their cache keys, as they were. Applied here
+rather than in :mod:`plantbench.suites`, whose code is part of every capture's key."""
+
 TYPICAL_SECONDS = {"plant": 5.0, "capture": 15.0, "points": 1.0, "metrics": 20.0, "method": 10.0,
                    "mvs": 60.0, "leaves": 60.0, "guo": 30.0, "gt": 1.0}
 """Rough seconds of a job per kind (and per shipped method) on a quick-suite case: scheduling priorities only."""
@@ -215,7 +220,8 @@ def make_plan(suite: Suite, methods: list[str] | None = None, *, dataset: tuple[
     resolved = {name: _resolve(name, suite) for name in method_names}
     variants = [(None, suite)]
     if suite.sweep is not None:
-        variants = [(v, apply_override(suite, level)) for v, level in suite.sweep.levels()]
+        variants = [(v, apply_override(suite, {k: x for k, x in level.items() if x != LEAVE_DEFAULT}))
+                    for v, level in suite.sweep.levels()]
     plan = Plan(suite)
     version_code = {
         "plant": code_hash("plantbench/generate"),
