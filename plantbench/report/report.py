@@ -337,6 +337,18 @@ def sweep_values(labels: pd.Series) -> pd.Series:
     return text.map(order).astype(float)
 
 
+def sweep_ticks(labels: pd.Series, values: pd.Series) -> list[str]:
+    """The sweep figure's tick labels, one per distinct x value (:func:`sweep_values`) in increasing order: the value
+    where the levels are numbers, else the level's own label ('2048px-at-1024'), so a level placed by its order
+    still says which it is."""
+    import pandas as pd
+
+    if pd.to_numeric(labels, errors="coerce").notna().all():
+        return [f"{v:g}" for v in sorted(values.unique())]
+    label_of = pd.Series(labels.astype(str).to_numpy(), index=values.to_numpy()).groupby(level=0).first()
+    return [label_of[v] for v in sorted(values.unique())]
+
+
 def _figures(table, folder: Path, sweep: str | None = None) -> list[Path]:
     """Bar chart per key metric (mean with 95 % CI per method), and sweep curves."""
     import matplotlib
@@ -378,6 +390,8 @@ def _figures(table, folder: Path, sweep: str | None = None) -> list[Path]:
         metrics = [m for m in KEY_METRICS if m in finite] or sorted(finite)[:4]
         values = sw["sweep_value"].unique()
         geometric = values.min() > 0 and values.max() >= 8 * values.min()  # reads best on a log axis
+        ticks = sweep_ticks(sw["sweep"], sw["sweep_value"])
+        long_ticks = max(len(t) for t in ticks) > 6
         ncol = min(5, max(len(metrics), 1))
         nrow = max(-(-len(metrics) // ncol), 1)
         fig, axes = plt.subplots(nrow, ncol, figsize=(3.4 * ncol, 3.2 * nrow), squeeze=False)
@@ -393,7 +407,7 @@ def _figures(table, folder: Path, sweep: str | None = None) -> list[Path]:
             if geometric:
                 ax.set_xscale("log")
                 ax.minorticks_off()
-            ax.set_xticks(sorted(values), [f"{v:g}" for v in sorted(values)], fontsize=7)
+            ax.set_xticks(sorted(values), ticks, fontsize=7, rotation=30 if long_ticks else 0)
         spare = axes.ravel()[len(metrics):]
         handles, names = axes[0][0].get_legend_handles_labels()
         if len(spare):  # the legend in an empty panel, clear of the curves

@@ -2,7 +2,7 @@
 
 import pandas as pd
 
-from plantbench.report.report import sweep_values
+from plantbench.report.report import sweep_ticks, sweep_values
 
 
 def test_numbers_stay_numbers():
@@ -20,3 +20,14 @@ def test_labels_the_numbers_cannot_tell_apart_give_their_order():
     assert sweep_values(pd.Series(["1 station", "1 station dense", "3 stations", "1 station"])).tolist() == \
         [0.0, 1.0, 2.0, 0.0]
     assert sweep_values(pd.Series(["low", "high", "low"])).tolist() == [0.0, 1.0, 0.0]
+
+
+def test_ticks_name_the_levels():
+    # numbers: the numbers; labels with distinct numbers: those numbers; labels placed by their order: the labels
+    numbers = pd.Series(["2", "0.5", "2"])
+    assert sweep_ticks(numbers, sweep_values(numbers)) == ["0.5", "2"]
+    px = pd.Series(["512px", "1024px", "2048px", "2048px-at-1024", "512px"])
+    assert sweep_values(px).tolist() == [0.0, 1.0, 2.0, 3.0, 0.0]  # 2048 twice: by order
+    assert sweep_ticks(px, sweep_values(px)) == ["512px", "1024px", "2048px", "2048px-at-1024"]
+    distinct = pd.Series(["1024px", "512px"])
+    assert sweep_ticks(distinct, sweep_values(distinct)) == ["512px", "1024px"]
