@@ -111,17 +111,17 @@ def test_sweep_linked_default_leaves_the_setting_alone():
     two = {"parameter": "capture.width", "values": [512, 1024], "labels": ["512", "1024"]}
     three = {"parameter": "capture.width", "values": [512, 1024, 1024], "labels": ["512", "1024", "1024-at-512"],
              "linked": {"method_options.mvs.max_size": ["default", "default", 512]}}
-    plan = make_plan(Suite.model_validate({**base, "sweep": three}), ["mvs"])
-    options = sorted((sorted(j.params["options"].items()) for j in plan.jobs.values()
-                      if j.kind != "capture" and j.params.get("method") == "mvs"), key=len)
+
+    def mvs_jobs(sweep):
+        plan = make_plan(Suite.model_validate({**base, "sweep": sweep}), ["mvs"])
+        jobs = {key: j for key, j in plan.jobs.items() if j.kind != "capture" and j.params.get("method") == "mvs"}
+        return plan, jobs
+
+    plan, jobs3 = mvs_jobs(three)
+    options = sorted((sorted(j.params["options"].items()) for j in jobs3.values()), key=len)
     assert options == [[("depth_params__background_span", 0.5)]] * 2 + [[("depth_params__background_span", 0.5),
                                                                           ("max_size", 512)]]
     assert {c.case for c in plan.cells} == {"laurel-1@512", "laurel-1@1024", "laurel-1@1024-at-512"}
-
-    def mvs_keys(sweep):
-        plan = make_plan(Suite.model_validate({**base, "sweep": sweep}), ["mvs"])
-        return {key for key, j in plan.jobs.items() if j.kind != "capture" and j.params.get("method") == "mvs"}
-
-    keys2, keys3 = mvs_keys(two), mvs_keys(three)
+    keys2, keys3 = set(mvs_jobs(two)[1]), set(jobs3)
     assert len(keys2) == 2 and len(keys3) == 3
     assert keys2 < keys3  # the two old levels' mvs jobs are the same jobs, the new level adds one

@@ -345,8 +345,8 @@ def sweep_ticks(labels: pd.Series, values: pd.Series) -> list[str]:
 
     if pd.to_numeric(labels, errors="coerce").notna().all():
         return [f"{v:g}" for v in sorted(values.unique())]
-    label_of = pd.Series(labels.astype(str).to_numpy(), index=values.to_numpy()).groupby(level=0).first()
-    return [label_of[v] for v in sorted(values.unique())]
+    label_of = dict(zip(values, labels.astype(str), strict=True))  # one label per value (sweep_values)
+    return [label_of[v] for v in sorted(label_of)]
 
 
 def _figures(table, folder: Path, sweep: str | None = None) -> list[Path]:
