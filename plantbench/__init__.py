@@ -5,6 +5,11 @@ Importing the package is cheap: heavy backends (Mitsuba, Open3D, pycolmap) are i
 
 from importlib.metadata import PackageNotFoundError, version
 
+from plantbench.backend import pin_dispatch
+
+# before numpy, SciPy or OpenCV is loaded: their CPU dispatch pinned to AVX2 kernels (docs/tuning/determinism.md)
+pin_dispatch()
+
 try:
     __version__ = version("plantbench")
 except PackageNotFoundError:  # running from a source tree that is not installed

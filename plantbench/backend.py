@@ -33,7 +33,8 @@ from plantbench.paths import cache_dir
 
 __all__ = ["LLVM_CANDIDATES", "find_libllvm", "select_variant", "load_mitsuba", "apply_thread_budget",
            "BackendWarning", "LLVMTarget", "PINNED_TARGET", "requested_llvm_target", "pin_llvm_target",
-           "current_llvm_target", "load_drjit", "host_can_pin", "host_has", "host_cpu_name", "cpu_name", "llvm_target_id",
+           "current_llvm_target", "load_drjit", "host_can_pin", "host_has", "host_cpu_name", "cpu_name", "llvm_target_id", "BLAS_PIN", "NUMPY_PIN",
+           "dispatch_environment", "pin_dispatch", "dispatch_id", "dispatch_seen",
            "EMBREE_PIN", "EMBREE_REQUIRES", "requested_embree_config", "pin_embree", "embree_config_seen",
            "thread_budget", "thread_map", "kdtree_workers"]
 
@@ -456,3 +457,98 @@ def load_mitsuba(variant: str | None = None):
         pin_llvm_target(dr)
     apply_thread_budget(dr)
     return mi
+
+
+# --- the numerical libraries' own CPU dispatch: OpenBLAS, numpy, OpenCV -----------------------------------------
+
+BLAS_PIN = "Haswell"
+"""OpenBLAS's kernels for every x86-64 CPU with AVX2 (``OPENBLAS_CORETYPE``). Left to itself OpenBLAS picks them
+by CPU model: SkylakeX or Cooperlake (AVX-512) on an Intel Xeon or an AMD Zen 4, Haswell on a Zen 5 (0.3.30/0.3.31
+do not know family 26). Their sums run in other orders, so ``-R @ eye`` of a camera differs in its last bit and the
+mvs stage's cloud, then every method, follow (docs/tuning/determinism.md)."""
+
+NUMPY_PIN = "X86_V3"
+"""numpy's dispatched loops at AVX2 (x86-64-v3): its AVX-512 loops (``exp``, ``log``, ``sin`` ... of float64) round
+other last bits than the AVX2 ones, and a CPU without AVX-512 has only the latter."""
+
+_NUMPY_AVX512 = {"new": "X86_V4 AVX512_ICL AVX512_SPR",  # numpy >= 2.4
+                 "old": "AVX512F AVX512CD AVX512_KNL AVX512_KNM AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL "
+                        "AVX512_SPR"}
+_OPENCV_ABOVE_AVX2 = "AVX_VNNI,AVX512-SKX,AVX512-CLX"
+"""OpenCV's dispatched levels above AVX2 in opencv-python's builds (``cv2.getCPUFeaturesLine()``)."""
+
+DISPATCH_HOST = "host"
+"""``PLANTBENCH_DISPATCH=host`` leaves OpenBLAS, numpy and OpenCV their own choice."""
+
+
+def _numpy_avx512_names() -> str:
+    try:
+        major, minor = (int(x) for x in version("numpy").split(".")[:2])
+    except (PackageNotFoundError, ValueError):
+        return _NUMPY_AVX512["new"]
+    return _NUMPY_AVX512["new" if (major, minor) >= (2, 4) else "old"]
+
+
+def dispatch_environment() -> dict[str, str]:
+    """The variables that pin OpenBLAS (:data:`BLAS_PIN`), numpy (:data:`NUMPY_PIN`) and OpenCV to AVX2 kernels on
+    an x86-64 CPU with :data:`PIN_REQUIRES`; {} elsewhere or with ``PLANTBENCH_DISPATCH=host``. Each library reads
+    its variable once, when it is loaded. (``OPENBLAS_L2_SIZE``, which this project's sandboxes also export, changes
+    no result: the same dgemm, dgemv and solve bytes at 512, 2048 and unset.)"""
+    if os.environ.get("PLANTBENCH_DISPATCH", "").strip() == DISPATCH_HOST or not host_can_pin():
+        return {}
+    return {"OPENBLAS_CORETYPE": BLAS_PIN, "NPY_DISABLE_CPU_FEATURES": _numpy_avx512_names(),
+            "OPENCV_CPU_DISABLE": _OPENCV_ABOVE_AVX2}
+
+
+def pin_dispatch(env: dict | None = None) -> dict[str, str]:
+    """Set :func:`dispatch_environment` in ``env`` (default ``os.environ``), over any value already there: machines
+    set ``OPENBLAS_CORETYPE`` for their own reasons (this project's sandboxes export ``Haswell``), and a pin that
+    gave way to them would not be one. ``PLANTBENCH_DISPATCH=host`` leaves the environment as it is (the
+    variability study plays another CPU that way). Called when plantbench is imported, so it takes effect when
+    numpy, SciPy and OpenCV are first loaded after it (the command line, every job process: a job's environment is
+    pinned again, :func:`plantbench.runner.execute.job_environment`); a program that loaded numpy first keeps its
+    dispatch (:func:`dispatch_seen` reads what it got). Returns the variables set."""
+    env = os.environ if env is None else env
+    new = dispatch_environment()
+    env.update(new)
+    return new
+
+
+def dispatch_id() -> str:
+    """The dispatch a job process gets (its environment is this one's with :func:`pin_dispatch` applied), for cache
+    keys and records: 'blas:Haswell numpy:X86_V3 opencv:AVX2' when pinned; a library left to its own choice reads
+    'auto' and the id then names the CPU, whose model decides. Read from the environment, not from the libraries
+    this process loaded, so a program that imported numpy before plantbench plans the same keys as the command
+    line (:func:`dispatch_seen` reads what was loaded)."""
+    env = dict(os.environ)
+    pin_dispatch(env)
+    pinned = dispatch_environment()
+    blas = env.get("OPENBLAS_CORETYPE") or "auto"
+    npy = env.get("NPY_DISABLE_CPU_FEATURES", "")
+    numpy_level = "auto" if not npy.strip() else NUMPY_PIN if npy == pinned.get("NPY_DISABLE_CPU_FEATURES") else (
+        "without:" + ",".join(npy.split()))
+    cv = env.get("OPENCV_CPU_DISABLE", "")
+    opencv = "auto" if not cv.strip() else "AVX2" if cv == pinned.get("OPENCV_CPU_DISABLE") else f"without:{cv}"
+    out = f"blas:{blas} numpy:{numpy_level} opencv:{opencv}"
+    return out + (f" cpu:{host_cpu_name()}" if "auto" in out else "")
+
+
+def dispatch_seen() -> str:
+    """What OpenBLAS and numpy dispatch to in this process, read from the loaded libraries (threadpoolctl, numpy's
+    CPU feature table): 'blas:Haswell numpy:X86_V3' (recorded in a capture's capture.json, by the job that made
+    it)."""
+    import numpy as np
+    import scipy.linalg  # noqa: F401 - loads SciPy's own OpenBLAS, so that its core is read too
+    from threadpoolctl import threadpool_info
+
+    cores = sorted({str(i.get("architecture")) for i in threadpool_info() if i.get("internal_api") == "openblas"})
+    try:
+        from numpy._core._multiarray_umath import __cpu_features__ as features
+    except ImportError:  # numpy < 2
+        from numpy.core._multiarray_umath import __cpu_features__ as features
+    level = "X86_V4" if features.get("X86_V4", features.get("AVX512_SKX")) else (
+        "X86_V3" if features.get("X86_V3", features.get("AVX2")) else "baseline")
+    if level == "X86_V4" and features.get("AVX512_ICL"):
+        level += "+AVX512_ICL"
+    del np
+    return f"blas:{','.join(cores) or 'none'} numpy:{level}"

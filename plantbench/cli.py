@@ -349,6 +349,7 @@ def gate(
         make_baseline,
         read_results,
         read_run_meta,
+        regression_lines,
         tolerances_path,
         write_baseline,
     )
@@ -368,17 +369,23 @@ def gate(
     console = _console()
     floor_only = int((result["source"] == "floor").sum())
     note = f" ({floor_only} with the floor tolerance only: not in {tol_file})" if floor_only else ""
+    say = console.print if console.is_terminal else typer.echo  # a log gets plain lines, never wrapped or cut
     if bad.empty:
-        console.print(f"gate passed: {len(result)} headline metrics within tolerance of {baseline}{note}")
+        say(f"gate passed: {len(result)} headline metrics within tolerance of {baseline}{note}")
         return
-    out = Table("method", "case", "metric", "baseline", "now", "change", "tolerance", "better", title="regressions")
-    for r in bad.itertuples():
-        missing = r.value != r.value
-        out.add_row(r.method, r.case, r.metric, f"{r.baseline:.4g}", "missing" if missing else f"{r.value:.4g}",
-                    "" if missing else f"{r.delta:+.3g}", f"{r.tolerance:.3g}" + (" (floor)" if r.source == "floor" else ""),
-                    "higher" if r.higher_is_better else "lower")
-    console.print(out)
-    console.print(f"gate failed: {len(bad)} of {len(result)} headline metrics regressed{note}")
+    if console.is_terminal:
+        out = Table("method", "case", "metric", "baseline", "now", "change", "tolerance", "better", title="regressions")
+        for r in bad.itertuples():
+            missing = r.value != r.value
+            out.add_row(r.method, r.case, r.metric, f"{r.baseline:.4g}", "missing" if missing else f"{r.value:.4g}",
+                        "" if missing else f"{r.delta:+.3g}",
+                        f"{r.tolerance:.3g}" + (" (floor)" if r.source == "floor" else ""),
+                        "higher" if r.higher_is_better else "lower")
+        console.print(out)
+    else:
+        for line in regression_lines(result):
+            typer.echo(line)
+    say(f"gate failed: {len(bad)} of {len(result)} headline metrics regressed{note}")
     raise typer.Exit(1)
 
 

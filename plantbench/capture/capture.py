@@ -143,7 +143,7 @@ def capture_case(case_dir: str | os.PathLike, settings: Any = None, *, seed: int
     if len(plant.leaf_mesh_ids) and (plant.leaf_mesh_ids.min() < 0 or plant.leaf_mesh_ids.max() > _MAX_LEAF_ID):
         raise InputError(f"leaf ids must lie in [0, {_MAX_LEAF_ID}] for uint16 instance maps", path=case / "plant")
 
-    from plantbench.backend import llvm_target_id, load_mitsuba
+    from plantbench.backend import dispatch_seen, llvm_target_id, load_mitsuba
     from plantbench.capture.scene import scene_dict
 
     timings: dict[str, float] = {}
@@ -174,6 +174,7 @@ def capture_case(case_dir: str | os.PathLike, settings: Any = None, *, seed: int
             "plant": {"species": plant_json.species, "seed": plant_json.seed, "height": plant_json.height},
             "mitsuba_variant": mi.variant(),
             "llvm_target": llvm_target_id() if mi.variant().startswith("llvm") else None,
+            "dispatch": dispatch_seen(),
             "ray_caster": caster.backend,
             "versions": _versions(),
             "images": [f"{i:04d}.png" for i in range(len(cameras))],

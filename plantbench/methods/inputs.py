@@ -25,13 +25,14 @@ import json
 import os
 import shutil
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from plantbench.errors import InputError
 
-__all__ = ["prepare_inputs", "run_isolated", "is_oracle", "reads_ground_truth", "check_cloud", "read_input_points", "VIEW_ENTRIES", "GROUND_TRUTH"]
+__all__ = ["PERTURB_ENV", "InputPerturbation", "input_perturbation", "perturb_points", "prepare_inputs", "run_isolated", "is_oracle", "reads_ground_truth", "check_cloud", "read_input_points", "VIEW_ENTRIES", "GROUND_TRUTH"]
 
 VIEW_ENTRIES = ("images", "cameras.json", "transforms.json")
 """What a method reading views gets of ``views/`` as it is (besides colmap/ and capture.json, filtered)."""
@@ -42,6 +43,55 @@ GROUND_TRUTH = ("plant", "views/depth", "views/instance", "views/foliage", "view
 _CAPTURE_GROUND_TRUTH_KEYS = ("plant", "scan", "leaf_pixels")
 """Keys of views/capture.json that describe the ground truth (the plant's species, seed and height; the scan's
 label counts; the leaves' pixel counts): dropped from a method's copy."""
+
+
+PERTURB_ENV = "PLANTBENCH_PERTURB_INPUT"
+"""A perturbation of every points method's input cloud that carries no meaning, for the variability study:
+``order:SEED`` (the points in another order) or ``jitter:AMPLITUDE:SEED`` (every coordinate moved by a uniform draw
+in [-AMPLITUDE, AMPLITUDE] metres). Unset: the cloud as the point stage wrote it. Part of every method job's key."""
+
+
+@dataclass(frozen=True)
+class InputPerturbation:
+    kind: str  # 'order' or 'jitter'
+    seed: int
+    amplitude: float = 0.0
+
+    def spec(self) -> str:
+        return f"order:{self.seed}" if self.kind == "order" else f"jitter:{self.amplitude:g}:{self.seed}"
+
+
+def input_perturbation() -> InputPerturbation | None:
+    """The perturbation :data:`PERTURB_ENV` asks for, or None; a malformed value is an InputError."""
+    value = os.environ.get(PERTURB_ENV, "").strip()
+    if not value:
+        return None
+    parts = value.split(":")
+    try:
+        if parts[0] == "order" and len(parts) == 2:
+            return InputPerturbation("order", int(parts[1]))
+        if parts[0] == "jitter" and len(parts) == 3 and float(parts[1]) > 0:
+            return InputPerturbation("jitter", int(parts[2]), float(parts[1]))
+    except ValueError:
+        pass
+    raise InputError(f"{PERTURB_ENV} must be 'order:SEED' or 'jitter:AMPLITUDE:SEED', got {value!r}")
+
+
+def perturb_points(points: np.ndarray, perturbation: InputPerturbation | None, *keys, columns=None):
+    """``points`` under ``perturbation`` (the same draw for the same seed and ``keys``); None: unchanged. With
+    ``columns`` (one value per point, e.g. the scan's station) returns (points, columns), the columns reordered with
+    their points and never jittered."""
+    out, cols = points, columns
+    if perturbation is not None:
+        from plantbench.seeding import rng
+
+        gen = rng(perturbation.seed, "input-perturbation", perturbation.kind, *keys)
+        if perturbation.kind == "order":
+            order = gen.permutation(len(points))
+            out, cols = points[order], (None if columns is None else np.asarray(columns)[order])
+        else:
+            out = points + gen.uniform(-perturbation.amplitude, perturbation.amplitude, size=points.shape)
+    return out if columns is None else (out, cols)
 
 
 def is_oracle(method, options: dict | None = None) -> bool:
@@ -98,6 +148,10 @@ def _copy_scan(src: Path, dest: Path) -> None:
     pts, fields = read_points(ply)
     dest.mkdir(parents=True)
     keep = {"station": fields["station"]} if "station" in fields else None
+    if keep is not None:
+        pts, keep["station"] = perturb_points(pts, input_perturbation(), "scan", columns=keep["station"])
+    else:
+        pts = perturb_points(pts, input_perturbation(), "scan")
     write_points(dest / "scan.ply", pts, keep)
     if (src / "stations.json").is_file():
         shutil.copyfile(src / "stations.json", dest / "stations.json")
@@ -141,7 +195,7 @@ def prepare_inputs(dest: str | os.PathLike, capture_dir: str | os.PathLike, inpu
             raise InputError("a points method needs a point cloud: the mvs stage's points.ply or the capture's scan",
                              path=cloud)
         pts, _ = read_points(cloud)  # coordinates only: the scan's labels are ground truth
-        write_points(dest / "points.ply", pts)
+        write_points(dest / "points.ply", perturb_points(pts, input_perturbation(), "points"))
         if not oracle and (capture / "views" / "cameras.json").exists():
             _copy_views(capture / "views", dest / "views")
         if points_dir is not None and (Path(points_dir) / "depth").is_dir():  # the mvs stage's own depth maps

@@ -10,18 +10,20 @@ skeleton, mesh and leaves with the root at the origin. Without a species hint it
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from plantbench.errors import InputError
 from plantbench.geometry.clouds import cloud_height
 from plantbench.plant import Plant, TriMesh
 
-__all__ = ["SpeciesPrior", "grow_prior", "cloud_height"]
+__all__ = ["SpeciesPrior", "grow_prior", "growth_height", "GROWTH_STEP", "cloud_height"]
 
 
 def grow_prior(species: str, seed: int, height: float) -> Plant:
     """The hinted species grown from the stream ``rng(seed, "method", "prior", species)`` (a stream no case draws)
-    at the size of a plant ``height`` metres tall, then scaled to exactly that height (root at the origin).
+    at the size of a plant ``height`` metres tall (rounded: :func:`growth_height`), then scaled to exactly that
+    height (root at the origin).
 
     The generators' ``scale`` grows a smaller plant of the species (size ~ scale^(1/3), fewer branches and leaves of
     the same size): the prior grows it once at full size (height H1) and, when ``height`` < H1, again at scale
@@ -35,10 +37,23 @@ def grow_prior(species: str, seed: int, height: float) -> Plant:
     spec = load_species(species)
     grow = FAMILIES[spec.family].grow
     plant = grow(spec, rng(int(seed), "method", "prior", species), scale=1.0)
-    if height < plant.height:
-        scale = max((height / plant.height) ** 3, 1e-3)
+    grown = growth_height(height)
+    if grown < plant.height:
+        scale = max((grown / plant.height) ** 3, 1e-3)
         plant = grow(spec, rng(int(seed), "method", "prior", species), scale=scale)
     return plant.scaled(height / plant.height)
+
+
+GROWTH_STEP = 0.01
+"""The prior grows its plant at the input's height rounded to steps of 1 % (:func:`growth_height`), then scales it
+to the exact height: growth is a chain of discrete choices that a 1e-6 m change of the height would reshuffle,
+scaling is continuous in it."""
+
+
+def growth_height(height: float) -> float:
+    """``height`` rounded to the nearest power of (1 + :data:`GROWTH_STEP`): the height the prior grows at."""
+    step = math.log1p(GROWTH_STEP)
+    return math.exp(round(math.log(height) / step) * step)
 
 
 class SpeciesPrior:

@@ -25,7 +25,7 @@ from plantbench.schemas import Strict, load_json
 
 __all__ = ["GATED", "FLOORS", "MEAN", "BaselineEntry", "Baseline", "ToleranceEntry", "Tolerances", "read_results",
            "read_run_meta", "cell_values", "compare", "make_baseline", "write_baseline", "load_baseline", "load_tolerances",
-           "write_tolerances", "tolerances_path"]
+           "write_tolerances", "tolerances_path", "regression_lines"]
 
 GATED = KEY_METRICS
 """The gated metrics: the headline and the reference paper's columns (:data:`plantbench.metrics.info.KEY_METRICS`);
@@ -194,3 +194,18 @@ def write_tolerances(path: str | os.PathLike, tolerances: Tolerances) -> None:
 
 def load_tolerances(path: str | os.PathLike) -> Tolerances:
     return load_json(path, Tolerances)
+
+
+def regression_lines(result) -> list[str]:
+    """One plain line per regressed row of :func:`compare`'s table, every field whole (for a log: no box, no cut):
+    'regressed: method=xu case=maple-1 metric=reprojection.iou baseline=0.2492 now=0.08534 change=-0.164
+    tolerance=0.0916 better=higher' ('now=missing' for a cell that newly failed; 'tolerance=... (floor)' where the
+    study did not cover the cell)."""
+    lines = []
+    for r in result[result["regressed"]].itertuples():
+        missing = r.value != r.value
+        lines.append(f"regressed: method={r.method} case={r.case} metric={r.metric} baseline={r.baseline:.4g} "
+                     f"now={'missing' if missing else f'{r.value:.4g}'} change={'none' if missing else f'{r.delta:+.3g}'} "
+                     f"tolerance={r.tolerance:.3g}{' (floor)' if r.source == 'floor' else ''} "
+                     f"better={'higher' if r.higher_is_better else 'lower'}")
+    return lines

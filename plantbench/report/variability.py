@@ -1,7 +1,9 @@
 """The variability study: a suite run again under perturbations that carry no meaning, and the gate's tolerances.
 
 A perturbation changes nothing a reconstruction should depend on: Dr.Jit's code generation (vector width, the
-instruction set of another CPU), +-1 grey level of noise on the images, the number of threads of each job. How far
+instruction set of another CPU), +-1 grey level of noise on the images, the number of threads of each job, the order
+of a points method's input cloud and a 1e-6 m move of its coordinates, OpenBLAS's and numpy's kernels where the
+pins (:func:`plantbench.backend.pin_dispatch`) are overridden. How far
 each headline metric of each (method, case) cell moves under them is the noise floor of that number; the gate's
 tolerance is max(3 x sd, largest change seen, floor) (:func:`tolerances_from_study`), so that the gate passes every
 run of the study and flags what moves beyond its noise.
@@ -21,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from plantbench.methods.inputs import PERTURB_ENV
 from plantbench.report.gate import FLOORS, GATED, ToleranceEntry, Tolerances, cell_values
 
 __all__ = ["Perturbation", "PERTURBATIONS", "available_perturbations", "study_table", "tolerances_from_study",
@@ -67,6 +70,17 @@ PERTURBATIONS = (
                  capture={"image_noise": 1, "image_noise_seed": 3}),
     Perturbation("threads2", "1 worker: each job's thread pools (Dr.Jit, BLAS, cKDTree, Open3D) use both cores",
                  workers=1),
+    Perturbation("order", "every points method's input cloud in another order (a seeded permutation of its rows)",
+                 env={PERTURB_ENV: "order:1"}),
+    Perturbation("jitter", "every coordinate of every points method's input cloud moved by a uniform draw in "
+                 "[-1e-6, 1e-6] m", env={PERTURB_ENV: "jitter:1e-6:1"}),
+    Perturbation("blas-skylakex", "OpenBLAS's AVX-512 kernels (OPENBLAS_CORETYPE=SkylakeX: what an Intel Xeon or an "
+                 "AMD Zen 4 picks when the pin is overridden)", env={"PLANTBENCH_DISPATCH": "host", "OPENBLAS_CORETYPE": "SkylakeX"},
+                 requires="+avx512f,+avx512dq,+avx512vl,+avx512bw"),
+    Perturbation("numpy-avx512", "numpy's and OpenCV's AVX-512 loops (NPY_DISABLE_CPU_FEATURES and "
+                 "OPENCV_CPU_DISABLE empty: what an AVX-512 CPU runs when the pin is overridden)",
+                 env={"PLANTBENCH_DISPATCH": "host", "NPY_DISABLE_CPU_FEATURES": "", "OPENCV_CPU_DISABLE": ""},
+                 requires="+avx512f,+avx512dq,+avx512vl,+avx512bw"),
 )
 """The study's runs, the reference first."""
 

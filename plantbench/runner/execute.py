@@ -67,9 +67,12 @@ def job_environment(threads: int | None, budget: int | None = None) -> dict[str,
     ``MALLOC_TRIM_THRESHOLD_`` is dropped: Dask's nanny sets it to 64 KiB in its workers
     (``distributed.nanny.pre-spawn-environ``) to keep a long-lived worker's memory down, and a job process that
     inherits it returns every freed array buffer to the kernel and faults it back in (what that cost:
-    docs/tuning/runner.md)."""
+    docs/tuning/runner.md). OpenBLAS, numpy and OpenCV get their pinned dispatch (:func:`plantbench.backend.pin_dispatch`)."""
+    from plantbench.backend import pin_dispatch
+
     env = dict(os.environ)
     env.pop("MALLOC_TRIM_THRESHOLD_", None)
+    pin_dispatch(env)  # a job loads numpy afresh: OpenBLAS, numpy and OpenCV pinned (a Dask worker loaded them first)
     if threads is not None:
         n = str(max(1, int(threads)))
         for var in ("PLANTBENCH_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",

@@ -213,7 +213,7 @@ def make_plan(suite: Suite, methods: list[str] | None = None, *, dataset: tuple[
     ``dataset`` (folder, :class:`plantbench.dataset.Manifest`, verified): each case's capture is the dataset's copy
     (a job that copies it into the cache, keyed by the files' sha256) instead of a generated and rendered one.
     A case folder of the suite (``path``) is copied into the cache the same way, keyed by its files' sha256."""
-    from plantbench.backend import llvm_target_id
+    from plantbench.backend import dispatch_id, llvm_target_id
     from plantbench.errors import InputError
 
     method_names = methods or suite.methods
@@ -231,6 +231,10 @@ def make_plan(suite: Suite, methods: list[str] | None = None, *, dataset: tuple[
         "runner": code_hash("plantbench/runner/worker.py", "plantbench/methods/inputs.py", "plantbench/hints.py"),
         # Dr.Jit's code generation changes renders and mvs depth: part of every key downstream of the capture
         "llvm": llvm_target_id(),
+        # OpenBLAS's and numpy's kernels change plants, cameras and everything after (backend.pin_dispatch)
+        "dispatch": dispatch_id(),
+        # the variability study's perturbation of a points method's input cloud (methods.inputs.PERTURB_ENV)
+        "inputs": _input_perturbation_spec(),
     }
     seen: set[str] = set()
     for sweep_value, s in variants:
@@ -248,6 +252,13 @@ def make_plan(suite: Suite, methods: list[str] | None = None, *, dataset: tuple[
                 seen.add(case.id)
                 _method_jobs(plan, s, resolved, case, sweep_value, version_code)
     return plan
+
+
+def _input_perturbation_spec() -> str:
+    from plantbench.methods.inputs import input_perturbation
+
+    p = input_perturbation()
+    return "" if p is None else p.spec()
 
 
 def method_options(suite: Suite, name: str) -> dict:
@@ -296,7 +307,7 @@ def _generated_cases(plan: Plan, s: Suite, case_set, sweep_value, version_code: 
         else:
             plant_key = plan.add(Job("plant", content_hash(
                 ["plant", case_set.species, hashlib.sha256(species_bytes).hexdigest(), seed, case_set.scale,
-                 version_code["plant"]]), {"species": case_set.species, "seed": seed, "scale": case_set.scale},
+                 version_code["plant"], version_code["dispatch"]]), {"species": case_set.species, "seed": seed, "scale": case_set.scale},
                 timeout_s=s.timeout_s))
             capture = s.capture.model_dump(mode="json")
             # each case its own capture stream (textures, render and scan noise), the same in every suite that
@@ -304,7 +315,7 @@ def _generated_cases(plan: Plan, s: Suite, case_set, sweep_value, version_code: 
             capture_seed = derive_seed(s.root_seed, "capture", case_set.species, seed)
             case_key = plan.add(Job("capture", content_hash(
                 ["capture", plant_key, capture, s.root_seed, capture_seed, version_code["capture"],
-                 version_code["llvm"]]),
+                 version_code["llvm"], version_code["dispatch"]]),
                 {"plant": plant_key, "settings": capture, "seed": capture_seed, "root_seed": s.root_seed},
                 deps=(plant_key,), timeout_s=s.timeout_s))
         yield _Case(case_id, case_set.species, spec.family, seed, case_key, case_set.species, hint)
@@ -389,7 +400,7 @@ def _method_jobs(plan: Plan, s: Suite, resolved: dict, case: _Case, sweep_value,
         # keyed by the method spec: 'livny@oracle' here and 'livny' of a suite whose mvs stage is the oracle share it
         recon_key = plan.add(Job("method", content_hash(
             ["method", spec, _method_code_hash(method), deps, options, case.seed, case.hint_species, case.hint,
-             version_code["runner"], version_code["llvm"]]),
+             version_code["runner"], version_code["llvm"], version_code["dispatch"], version_code["inputs"]]),
             {"method": spec, "case": case.key, "points": points_key,
              "seed": case.seed, "species": case.hint_species, "options": options},
             deps=tuple(deps), timeout_s=s.timeout_s))
@@ -421,7 +432,7 @@ def _points_job(plan: Plan, s: Suite, case_key: str, seed: int, species: str, ve
         options = {**options, "depth": "oracle"}
     recon = plan.add(Job("method", content_hash(
         ["method", "mvs", _method_code_hash(mvs), [case_key], options, seed, species, hint, version_code["runner"],
-         version_code["llvm"]]),
+         version_code["llvm"], version_code["dispatch"]]),
         {"method": "mvs", "case": case_key, "points": None, "seed": seed, "species": species, "options": options},
         deps=(case_key,), timeout_s=s.timeout_s))
     return plan.add(Job("points", content_hash(["points", "views", recon, version_code["runner"]]),

@@ -83,7 +83,7 @@ def oracle_methods(suite: Suite, methods: list[str]) -> list[str]:
 def run_metadata(suite: Suite, methods: list[str]) -> dict:
     """What every results file records: versions, git SHA, config hash, Mitsuba variant."""
     from plantbench import __version__
-    from plantbench.backend import llvm_target_id, select_variant
+    from plantbench.backend import dispatch_id, llvm_target_id, select_variant
     from plantbench.metrics.info import HEADLINE
 
     pkgs = {}
@@ -103,6 +103,7 @@ def run_metadata(suite: Suite, methods: list[str]) -> dict:
         "root_seed": suite.root_seed,
         "mitsuba_variant": select_variant(),
         "llvm_target": llvm_target_id(),
+        "dispatch": dispatch_id(),
         "headline": list(HEADLINE),
         "packages": pkgs,
         "python": platform.python_version(),

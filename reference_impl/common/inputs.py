@@ -23,8 +23,13 @@ def check_points(points: np.ndarray, *, what: str = "points") -> np.ndarray:
 
 
 def load_points(capture_dir: str | Path) -> np.ndarray:
-    """The coordinates of ``capture_dir/points.ply`` (extra columns ignored), validated by :func:`check_points`."""
-    return read_input_points(capture_dir, min_points=MIN_POINTS)
+    """The coordinates of ``capture_dir/points.ply`` (extra columns ignored), validated by :func:`check_points`, in
+    their canonical order (:func:`plantbench.geometry.clouds.canonical_order`): a method that reads them here gives
+    the same reconstruction for the cloud's points in any order."""
+    from plantbench.geometry.clouds import canonical_order
+
+    pts = read_input_points(capture_dir, min_points=MIN_POINTS)
+    return pts[canonical_order(pts)]
 
 
 def split_ground(points: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, Ground, np.ndarray]:

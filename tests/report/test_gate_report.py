@@ -98,6 +98,33 @@ def test_gate_cli_names_the_regressed_metric(tmp_path):
     assert "mean" in fail.stdout
 
 
+def test_gate_in_a_pipe_prints_one_whole_line_per_regression(tmp_path):
+    """A CI log: plain lines, full metric names, no box drawing, nothing cut even on a narrow COLUMNS."""
+    good, bad = tmp_path / "good", tmp_path / "bad"
+    good.mkdir()
+    bad.mkdir()
+    _table(np.random.default_rng(1)).to_csv(good / "results.csv", index=False)
+    _table(np.random.default_rng(1), d_shift=1.0).to_csv(bad / "results.csv", index=False)
+    base = pd.read_csv(good / "results.csv")
+    write_baseline(tmp_path / "baseline.json", make_baseline(base, "t"))
+    fail = subprocess.run([sys.executable, "-m", "plantbench.cli", "gate", str(bad), "--baseline",
+                           str(tmp_path / "baseline.json")], capture_output=True, text=True,
+                          env={"COLUMNS": "40", "PATH": "/usr/bin:/bin"})
+    assert fail.returncode == 1, fail.stderr
+    lines = fail.stdout.splitlines()
+    assert not set("".join(lines)) & set("│┃━─┏┓┗┛┡┩└┘╇…")
+    rows = [line for line in lines if line.startswith("regressed: ")]
+    assert len(rows) == 7 and lines[-1].startswith("gate failed: 7 of 28 headline metrics regressed")
+    expected = base[(base["method"] == "livny") & (base["metric"] == "mesh_to_scan.D_cm")].set_index("case")["value"]
+    for case, value in expected.items():
+        row = next(r for r in rows if f" case={case} " in r)
+        fields = dict(f.split("=", 1) for f in row.removeprefix("regressed: ").split(" ") if "=" in f)
+        assert fields["method"] == "livny" and fields["metric"] == "mesh_to_scan.D_cm" and fields["better"] == "lower"
+        assert float(fields["baseline"]) == pytest.approx(value, rel=1e-3)
+        assert float(fields["now"]) - float(fields["baseline"]) == pytest.approx(1.0, abs=0.05)
+        assert float(fields["change"]) == pytest.approx(1.0, abs=0.05) and float(fields["tolerance"]) > 0
+
+
 def test_baseline_file_is_validated(tmp_path):
     from plantbench.errors import InputError
     from plantbench.report.gate import load_baseline

@@ -62,6 +62,18 @@ def test_prior_grows_a_small_plant_of_the_species_for_a_small_height():
         grow_prior("laurel", 0, 0.0)
 
 
+def test_prior_moves_by_round_off_when_the_height_does():
+    """A 1e-6 m change of the cloud's height scales the same grown plant (the variability study's jitter run): every
+    node moves by at most the relative change times its distance from the root."""
+    from plantbench.methods.prior import growth_height
+
+    a, b = grow_prior("laurel", 0, 0.6871), grow_prior("laurel", 0, 0.6871 + 1e-6)
+    assert len(a.skeleton) == len(b.skeleton) and len(a.leaves) == len(b.leaves)
+    np.testing.assert_allclose(b.skeleton.positions, a.skeleton.positions * (0.6871 + 1e-6) / 0.6871, atol=1e-12)
+    assert growth_height(0.6871) == pytest.approx(0.6871, rel=0.005) and growth_height(3.0) == growth_height(3.001)
+    assert growth_height(3.0) != growth_height(3.1)
+
+
 def test_scaled_plant(laurel):
     s = laurel.scaled(2.0)
     assert s.height == pytest.approx(2 * laurel.height)
