@@ -213,6 +213,20 @@ class Plant:
                      TriMesh(self.leaf_mesh.vertices * f, self.leaf_mesh.faces), self.leaf_mesh_ids, leaves,
                      dict(self.meta))
 
+    def translated(self, offset) -> Plant:
+        """The plant moved by ``offset`` (3,): positions, meshes and leaf frames."""
+        o = np.asarray(offset, float).reshape(3)
+        sk = self.skeleton
+        leaves = []
+        for leaf in self.leaves:
+            t = np.array(leaf.transform, float)
+            t[:3, 3] += o
+            leaves.append(Leaf(leaf.id, leaf.node, t, dict(leaf.params), leaf.length, leaf.width))
+        return Plant(Skeleton(sk.positions + o, sk.radii, sk.parents, sk.order),
+                     TriMesh(self.branch_mesh.vertices + o, self.branch_mesh.faces),
+                     TriMesh(self.leaf_mesh.vertices + o, self.leaf_mesh.faces), self.leaf_mesh_ids, leaves,
+                     dict(self.meta))
+
     @property
     def height(self) -> float:
         parts = [self.skeleton.positions[:, 2], self.branch_mesh.vertices[:, 2], self.leaf_mesh.vertices[:, 2]]

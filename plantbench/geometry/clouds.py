@@ -7,7 +7,11 @@ import numpy as np
 from plantbench.errors import InputError
 from plantbench.plant import check_shape
 
-__all__ = ["cloud_height", "median_spacing", "HEIGHT_QUANTILE", "canonical_order", "CANONICAL_CELL"]
+__all__ = ["cloud_height", "cloud_base", "BASE_QUANTILE", "median_spacing", "HEIGHT_QUANTILE", "canonical_order",
+           "CANONICAL_CELL"]
+
+BASE_QUANTILE = 0.1
+"""A cloud's base is read on its lowest tenth (by z): :func:`cloud_base`."""
 
 CANONICAL_CELL = 1e-3
 """Cell of :func:`canonical_order`, metres: far above a coordinate's round-off (a 1e-6 m move changes a point's cell
@@ -24,6 +28,17 @@ def cloud_height(points: np.ndarray) -> float:
     if not len(pts):
         raise InputError("the cloud is empty: it has no height")
     return float(np.quantile(pts[:, 2], HEIGHT_QUANTILE))
+
+
+def cloud_base(points: np.ndarray) -> np.ndarray:
+    """Where a cloud (n, 3) stands on the ground plane z = 0: the median x and y of its lowest :data:`BASE_QUANTILE`
+    of points (by z), at z = 0. A rule any method can apply to its input (the no-data prior stands its stem there):
+    it does not know the true root, and a stray point or a leaning stem moves it little."""
+    pts = check_shape("points", points, (-1, 3), "f")
+    if not len(pts):
+        raise InputError("the cloud is empty: it has no base")
+    low = pts[pts[:, 2] <= np.quantile(pts[:, 2], BASE_QUANTILE)]
+    return np.array([float(np.median(low[:, 0])), float(np.median(low[:, 1])), 0.0])
 
 
 def median_spacing(points: np.ndarray) -> float:

@@ -4,8 +4,9 @@ It is the floor beside every method (docs/design.md): a method earns its row by 
 species from the species library (``scenes/species``, the generative model itself: an oracle of the model, marked
 as such in every table, though it reads no ground truth of the case) with the method seed, scales it to the
 height of the input cloud (its vertical extent above the ground plane z = 0,
-:func:`plantbench.geometry.clouds.cloud_height`) and writes
-skeleton, mesh and leaves with the root at the origin. Without a species hint it refuses to run.
+:func:`plantbench.geometry.clouds.cloud_height`) and stands it where the cloud stands
+(:func:`plantbench.geometry.clouds.cloud_base`: the median x, y of the cloud's lowest tenth), not on the true root,
+which no method is given. It writes skeleton, mesh and leaves. Without a species hint it refuses to run.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import math
 from pathlib import Path
 
 from plantbench.errors import InputError
-from plantbench.geometry.clouds import cloud_height
+from plantbench.geometry.clouds import cloud_base, cloud_height
 from plantbench.plant import Plant, TriMesh
 
 __all__ = ["SpeciesPrior", "grow_prior", "growth_height", "GROWTH_STEP", "cloud_height"]
@@ -57,7 +58,8 @@ def growth_height(height: float) -> float:
 
 
 class SpeciesPrior:
-    """``prior``: the species grown with another seed, scaled to the input's height; reads nothing else."""
+    """``prior``: the species grown with another seed, scaled to the input's height and stood on its base; reads
+    nothing else."""
 
     name = "prior"
     inputs = "points"
@@ -81,6 +83,7 @@ class SpeciesPrior:
         cloud = Path(capture_dir) / "points.ply"
         if not cloud.is_file():
             raise InputError("prior: no points.ply to take the plant's height from", path=cloud)
-        plant = grow_prior(hint.species, seed, cloud_height(read_points(cloud)[0]))
+        points = read_points(cloud)[0]
+        plant = grow_prior(hint.species, seed, cloud_height(points)).translated(cloud_base(points))
         write_reconstruction(out_dir, plant.skeleton, mesh=TriMesh.concatenate([plant.branch_mesh, plant.leaf_mesh]),
                              leaves=plant.leaves)

@@ -9,6 +9,7 @@ import pytest
 
 from plantbench.errors import InputError
 from plantbench.generate.case import grow_species
+from plantbench.geometry.clouds import cloud_base
 from plantbench.hints import load_hint, write_hint
 from plantbench.io.plantio import read_reconstruction
 from plantbench.io.ply import write_points
@@ -36,8 +37,11 @@ def test_prior_refuses_without_a_hint(tmp_path):
         SpeciesPrior().reconstruct(tmp_path, tmp_path / "out", seed=0)
 
 
-def test_prior_takes_the_height_of_the_cloud_and_nothing_else(tmp_path):
-    pts = np.random.default_rng(0).uniform([-0.3, -0.3, 0], [0.3, 0.3, 0.9], (5000, 3))
+def test_prior_takes_the_height_and_the_base_of_the_cloud_and_nothing_else(tmp_path):
+    rng = np.random.default_rng(0)
+    stem = np.column_stack([rng.normal(0.4, 0.01, 600), rng.normal(-0.2, 0.01, 600), rng.uniform(0, 0.3, 600)])
+    crown = rng.uniform([-0.3, -0.3, 0.3], [0.3, 0.3, 0.9], (4400, 3))
+    pts = np.concatenate([crown, stem])  # the stem stands at (0.4, -0.2), not at the origin
     write_points(tmp_path / "points.ply", pts)
     write_hint(tmp_path, load_hint("laurel"))
     SpeciesPrior().reconstruct(tmp_path, tmp_path / "a", seed=3)
@@ -46,7 +50,11 @@ def test_prior_takes_the_height_of_the_cloud_and_nothing_else(tmp_path):
     a, b, c = (read_reconstruction(tmp_path / k) for k in "abc")
     z = np.concatenate([a.skeleton.positions[:, 2], a.mesh.vertices[:, 2]])
     assert z.max() == pytest.approx(cloud_height(pts)) and np.quantile(pts[:, 2], 0.999) == cloud_height(pts)
-    assert np.allclose(a.skeleton.positions[a.skeleton.roots][:, :2], 0, atol=1e-9)  # root at the origin
+    # the root where the cloud stands: the median x, y of its lowest tenth (all stem points here), on z = 0
+    low = pts[pts[:, 2] <= np.quantile(pts[:, 2], 0.1)]
+    assert len(low) < 600 and np.allclose(cloud_base(pts), [np.median(low[:, 0]), np.median(low[:, 1]), 0.0])
+    np.testing.assert_allclose(a.skeleton.positions[a.skeleton.roots][0], cloud_base(pts), atol=1e-6)
+    assert np.linalg.norm(cloud_base(pts)[:2] - [0.4, -0.2]) < 0.005
     for name in ("skeleton.ply", "mesh.ply", "leaves.json"):  # same seed, same bytes; another seed, another tree
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
     assert len(c.skeleton) != len(a.skeleton) or not np.allclose(c.skeleton.positions, a.skeleton.positions)
