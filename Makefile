@@ -42,7 +42,8 @@ bench: setup
 baseline: variability
 
 # The variability study: the quick suite under perturbations that carry no meaning (Dr.Jit target and vector width,
-# +-1 grey level of image noise, thread count); writes reports/tolerances.json, reports/baseline.json and
+# +-1 grey level of image noise, thread count, the methods' input cloud shuffled or moved by 1e-6 m, OpenBLAS's and
+# numpy's own kernels in place of the pins); writes reports/tolerances.json, reports/baseline.json and
 # reports/variability/ (commit them).
 variability: setup
 	$(BIN)/plantbench variability --suite quick --out runs/variability --reports reports

@@ -108,7 +108,7 @@ def test_progress_bar_only_on_a_terminal():
 
     from rich.console import Console
 
-    from plantbench.cli import _progress_bar
+    from plantbench.commands._app import _progress_bar
 
     def drawn(terminal: bool) -> str:
         buf = io.StringIO()

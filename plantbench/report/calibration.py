@@ -179,6 +179,20 @@ def _fmt(v: float) -> str:
     return f"{v:.3f}" if abs(v) < 100 else f"{v:.0f}"
 
 
+
+def _missed_lines(rows, checks, n: int, means, words: str) -> list[str]:
+    """One line per verdict row: the checks it passed on fewer than all ``n`` plants, then its ladder means, each
+    ``{rung}`` of ``words`` replaced by the metric's mean on that rung."""
+    import re
+
+    out = []
+    for d in rows.to_dict("records"):
+        missed = ", ".join(f"{c} on {int(d[c])}/{n}" for c in checks if int(d[c]) < n)
+        m = means.loc[d["metric"]]
+        said = re.sub(r"\{([^}]+)\}", lambda k, m=m: _fmt(m.get(k.group(1), np.nan)), words)
+        out.append(f"- `{d['metric']}`: {missed} plants (means: {said}).")
+    return out
+
 def calibration_markdown(table, verdict, *, header: str = "", headline: tuple[str, ...] = (),
                          structure: tuple[str, ...] = ()) -> str:
     """The README of reports/calibration: the verdict table (every metric), the ladder's means for the key metrics.
@@ -222,23 +236,14 @@ def calibration_markdown(table, verdict, *, header: str = "", headline: tuple[st
     failing = verdict[(verdict["verdict"] != "discriminates") & verdict["metric"].isin(means.index)]
     if len(failing):
         lines += ["", "## Why the older columns are not headline metrics", ""]
-        for d in failing.to_dict("records"):
-            missed = ", ".join(f"{c} on {int(d[c])}/{n}" for c in VOLUME_CHECKS if int(d[c]) < n)
-            m = means.loc[d["metric"]]
-            lines.append(f"- `{d['metric']}`: {missed} plants (means: orders<=2 {_fmt(m.get('orders<=2', np.nan))}, "
-                         f"orders<=1 {_fmt(m.get('orders<=1', np.nan))}, jitter 0.5 % "
-                         f"{_fmt(m.get('jitter-0.5%', np.nan))}, priors {_fmt(m.get('prior-a', np.nan))} and "
-                         f"{_fmt(m.get('prior-b', np.nan))}).")
+        lines += _missed_lines(failing, VOLUME_CHECKS, n, means, "orders<=2 {orders<=2}, orders<=1 {orders<=1}, "
+                               "jitter 0.5 % {jitter-0.5%}, priors {prior-a} and {prior-b}")
     blind = verdict[(verdict["verdict"] == "discriminates") & (verdict["structure"] != "discriminates")
                     & verdict["metric"].isin(means.index)]
     if len(blind):
         lines += ["", "## Fidelity metrics that do not see structure", ""]
-        for d in blind.to_dict("records"):
-            missed = ", ".join(f"{c} on {int(d[c])}/{n}" for c in STRUCTURE_CHECKS if int(d[c]) < n)
-            m = means.loc[d["metric"]]
-            lines.append(f"- `{d['metric']}`: {missed} plants (means: gt {_fmt(m.get('gt', np.nan))}, twigs +25 / "
-                         f"+100 / +400 % {_fmt(m.get('twigs+25%', np.nan))} / {_fmt(m.get('twigs+100%', np.nan))} / "
-                         f"{_fmt(m.get('twigs+400%', np.nan))}, tangle {_fmt(m.get(TANGLE, np.nan))}).")
+        lines += _missed_lines(blind, STRUCTURE_CHECKS, n, means, "gt {gt}, twigs +25 / +100 / +400 % {twigs+25%} / "
+                               "{twigs+100%} / {twigs+400%}, tangle {" + TANGLE + "}")
     lines += ["", "## Verdict per metric", "",
               "Counts are plants passing each check (of " + str(n) + "); *all*: every volume check, *all+s*: every "
               "check.", "",
@@ -261,7 +266,7 @@ def ladder_figure(table, metrics: list[str], path: str | os.PathLike) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from plantbench.io.atomic import atomic_write
+    from plantbench.report.figures import save_png
 
     piv = _pivot(table)
     rungs = [r for r in LADDER if r in piv.columns]
@@ -293,12 +298,7 @@ def ladder_figure(table, metrics: list[str], path: str | os.PathLike) -> Path:
         ax.set_visible(False)
     fig.suptitle("Calibration ladder: each plant (grey), mean (black); no-data priors shaded red", fontsize=10)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_write(path) as fh:
-        fig.savefig(fh, format="png", dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path)
 
 
 def write_calibration(table, folder: str | os.PathLike, *, header: str = "") -> tuple[object, list[Path]]:

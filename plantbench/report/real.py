@@ -130,7 +130,7 @@ def trait_figure(run_dir: str | os.PathLike, table, path: str | os.PathLike) -> 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from plantbench.io.atomic import atomic_write
+    from plantbench.report.figures import save_png
 
     refs = reference_traits(run_dir)
     if refs.empty:
@@ -165,12 +165,7 @@ def trait_figure(run_dir: str | os.PathLike, table, path: str | os.PathLike) -> 
     fig.suptitle("Traits against three reference QSMs (grey band: their range; filled: from the method's QSM "
                  "export, hollow: from its skeleton)", fontsize=9)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_write(path) as fh:
-        fig.savefig(fh, format="png", dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path)
 
 
 def skeleton_figure(run_dir: str | os.PathLike, case: str, path: str | os.PathLike, *,
@@ -186,9 +181,9 @@ def skeleton_figure(run_dir: str | os.PathLike, case: str, path: str | os.PathLi
     import matplotlib.pyplot as plt
     from matplotlib.collections import LineCollection
 
-    from plantbench.io.atomic import atomic_write
     from plantbench.io.plantio import read_reconstruction
     from plantbench.io.ply import read_points
+    from plantbench.report.figures import save_png
 
     run_dir = Path(run_dir)
     cells = [c for c in json.loads((run_dir / "cells.json").read_text()) if c["case"] == case and c["status"] == "ok"]
@@ -221,12 +216,7 @@ def skeleton_figure(run_dir: str | os.PathLike, case: str, path: str | os.PathLi
             ax.set_title(f"{case}, {method}: {name}", fontsize=9)
             ax.tick_params(labelsize=7)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_write(path) as fh:
-        fig.savefig(fh, format="png", dpi=90)
-    plt.close(fig)
-    return path
+    return save_png(fig, path, dpi=90)
 
 
 def real_tables(run_dir: str | os.PathLike, table) -> list[tuple[str, str, object]]:

@@ -27,7 +27,8 @@ from plantbench.methods.inputs import PERTURB_ENV
 from plantbench.report.gate import FLOORS, GATED, ToleranceEntry, Tolerances, cell_values
 
 __all__ = ["Perturbation", "PERTURBATIONS", "available_perturbations", "study_table", "tolerances_from_study",
-           "run_study", "STUDY_COLUMNS", "another_cpu", "extend_study", "study_perturbations"]
+           "run_study", "STUDY_COLUMNS", "another_cpu", "extend_study", "study_perturbations", "read_study",
+           "write_study"]
 
 STUDY_COLUMNS = ["perturbation", "method", "case", "metric", "value"]
 
@@ -242,3 +243,66 @@ def study_markdown(study, tolerances: Tolerances, perturbations: list[Perturbati
                   + ", ".join(f"{k} {int(bound.get(k, 0))}" for k in ("spread", "max_change", "floor"))
                   + f" (of {len(tol)})."]
     return "\n".join(lines) + "\n"
+
+
+def read_study(path: Path):
+    """A committed study table (study.csv), checked for its columns and a reference run."""
+    import pandas as pd
+
+    from plantbench.errors import InputError
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no study to add to: run `plantbench variability` on the first machine", path=path)
+    try:
+        study = pd.read_csv(path)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"unreadable study table: {exc}", path=path) from None
+    if list(study.columns) != STUDY_COLUMNS or "reference" not in set(study["perturbation"]):
+        raise InputError(f"not a study table (columns {STUDY_COLUMNS} and a 'reference' run)", path=path)
+    return study
+
+
+def _made_line(folder: Path, suite: str, chosen: list[Perturbation], previous, seconds: float, meta: dict) -> str:
+    """The study README's header: how it was made; with ``previous`` (an --another-cpu run) the first machine's
+    header stays and this run is added below it."""
+    from plantbench.backend import host_cpu_name
+
+    if previous is None:
+        return (f"Made by `plantbench variability --suite {suite}` on {host_cpu_name()} (code {meta.get('git_sha')}, "
+                f"{seconds:.0f} s for {len(chosen)} runs). study.csv holds every run's headline values; "
+                "../tolerances.json the tolerances; ../baseline.json the reference run's values.")
+    lines = (folder / "README.md").read_text().splitlines() if (folder / "README.md").is_file() else []
+    end = next((i for i, line in enumerate(lines) if line.startswith("| run |")), len(lines))
+    old = "\n".join(line for line in lines[1:end] if not line.startswith(f"Run {chosen[0].name} ")).strip()
+    return (f"{old}\n\nRun {chosen[0].name} added by `plantbench variability --suite {suite} --another-cpu` on "
+            f"{host_cpu_name()} (code {meta.get('git_sha')}, {seconds:.0f} s).")
+
+
+def write_study(reports: Path, suite: str, tables: dict[str, object], chosen: list[Perturbation], *, previous=None,
+                seconds: float = 0.0, meta: dict | None = None) -> list[Path]:
+    """Write a study's outputs under ``reports``: variability/study.csv (``previous`` grown by ``tables`` when given),
+    variability/README.md, tolerances.json and, for a first study (no ``previous``), baseline.json from the
+    reference run. ``meta`` is the first run's run.json (git SHA, Dr.Jit target). Returns the files written."""
+    from plantbench.io.atomic import atomic_write
+    from plantbench.report.gate import make_baseline, write_baseline, write_tolerances
+
+    meta = meta or {}
+    reports = Path(reports)
+    folder = reports / "variability"
+    study = study_table(tables) if previous is None else extend_study(previous, tables)
+    tol = tolerances_from_study(study, suite)
+    folder.mkdir(parents=True, exist_ok=True)
+    with atomic_write(folder / "study.csv", "w") as fh:
+        study.to_csv(fh, index=False)
+    made = _made_line(folder, suite, chosen, previous, seconds, meta)
+    with atomic_write(folder / "README.md", "w") as fh:
+        fh.write(study_markdown(study, tol, study_perturbations(study), header=made))
+    write_tolerances(reports / "tolerances.json", tol)
+    written = [folder / "study.csv", folder / "README.md", reports / "tolerances.json"]
+    if previous is None:
+        write_baseline(reports / "baseline.json", make_baseline(tables["reference"], suite,
+                                                                llvm_target=meta.get("llvm_target"),
+                                                                git_sha=meta.get("git_sha")))
+        written.append(reports / "baseline.json")
+    return written

@@ -344,7 +344,7 @@ def _folder_case(plan: Plan, s: Suite, case_set, sweep_value, version_code: dict
     """A suite's case folder (``path``): a capture job that copies it into the cache, keyed by the sha256 of its
     files, so that editing one re-runs everything downstream. Case id: the folder's name; seed 0; species: the
     hint's, or 'unknown' without one."""
-    from plantbench.dataset import file_sha256
+    from plantbench.io.manifest import file_sha256
 
     folder = Path(case_set.path)
     case_id = folder.name + (f"@{sweep_value}" if sweep_value is not None else "")
@@ -371,7 +371,7 @@ def _scan_case(plan: Plan, s: Suite, case_set, sweep_value) -> _Case:
     """A suite's scan file (``scan``): a capture job that imports it (``plantbench import scan``, with the case's
     units and up axis), keyed by the file's sha256, the options and the importer's code. Case id: the file's name
     without its suffixes; seed 0; species: the hint's, or 'unknown' without one."""
-    from plantbench.dataset import file_sha256
+    from plantbench.io.manifest import file_sha256
 
     case_id = scan_case_id(case_set.scan) + (f"@{sweep_value}" if sweep_value is not None else "")
     key = plan.add(Job("capture", content_hash(

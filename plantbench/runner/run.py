@@ -131,7 +131,7 @@ def run_suite(
     t0 = time.perf_counter()
     frozen = None
     if dataset is not None:
-        from plantbench.dataset import open_dataset
+        from plantbench.io.manifest import open_dataset
 
         frozen = dataset if isinstance(dataset, tuple) else open_dataset(dataset, suite)
     plan = make_plan(suite, methods, dataset=frozen)  # validates species and methods before any work
@@ -163,7 +163,7 @@ def _start_metadata(suite: Suite, method_names: list[str], frozen: tuple | None)
     meta["started"] = time.strftime("%Y-%m-%dT%H:%M:%S%z")
     meta["oracles"] = oracle_methods(suite, method_names)
     if frozen is not None:
-        from plantbench.dataset import manifest_sha256
+        from plantbench.io.manifest import manifest_sha256
 
         meta["dataset"] = {"path": str(frozen[0].resolve()), "manifest_sha256": manifest_sha256(frozen[0]),
                            "git_sha": frozen[1].git_sha, "llvm_target": frozen[1].llvm_target}

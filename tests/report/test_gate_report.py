@@ -78,13 +78,21 @@ def test_gate_flags_a_method_that_newly_fails():
     assert res.loc[res["method"] == "livny", "regressed"].all()
 
 
-def test_gate_cli_names_the_regressed_metric(tmp_path):
+def _good_and_bad_runs(tmp_path):
+    """Two run folders of the same cells, the second with livny's D 1 cm worse everywhere, and a baseline made from
+    the first; returns (good, bad, the baseline's table)."""
     good, bad = tmp_path / "good", tmp_path / "bad"
     good.mkdir()
     bad.mkdir()
     _table(np.random.default_rng(1)).to_csv(good / "results.csv", index=False)
     _table(np.random.default_rng(1), d_shift=1.0).to_csv(bad / "results.csv", index=False)
-    write_baseline(tmp_path / "baseline.json", make_baseline(pd.read_csv(good / "results.csv"), "t"))
+    base = pd.read_csv(good / "results.csv")
+    write_baseline(tmp_path / "baseline.json", make_baseline(base, "t"))
+    return good, bad, base
+
+
+def test_gate_cli_names_the_regressed_metric(tmp_path):
+    good, bad, _ = _good_and_bad_runs(tmp_path)
     cli = [sys.executable, "-m", "plantbench.cli", "gate"]
     ok = subprocess.run([*cli, str(good), "--baseline", str(tmp_path / "baseline.json")], capture_output=True,
                         text=True)
@@ -100,13 +108,7 @@ def test_gate_cli_names_the_regressed_metric(tmp_path):
 
 def test_gate_in_a_pipe_prints_one_whole_line_per_regression(tmp_path):
     """A CI log: plain lines, full metric names, no box drawing, nothing cut even on a narrow COLUMNS."""
-    good, bad = tmp_path / "good", tmp_path / "bad"
-    good.mkdir()
-    bad.mkdir()
-    _table(np.random.default_rng(1)).to_csv(good / "results.csv", index=False)
-    _table(np.random.default_rng(1), d_shift=1.0).to_csv(bad / "results.csv", index=False)
-    base = pd.read_csv(good / "results.csv")
-    write_baseline(tmp_path / "baseline.json", make_baseline(base, "t"))
+    _, bad, base = _good_and_bad_runs(tmp_path)
     fail = subprocess.run([sys.executable, "-m", "plantbench.cli", "gate", str(bad), "--baseline",
                            str(tmp_path / "baseline.json")], capture_output=True, text=True,
                           env={"COLUMNS": "40", "PATH": "/usr/bin:/bin"})
