@@ -30,7 +30,7 @@ species: Registry[Path] = Registry("species", _discover)
 
 def load_species(name: str):
     """Validated species parameters (the family's pydantic model) for ``name``."""
-    from plantbench.generate import FAMILIES
+    from plantbench.generate.families import FAMILIES
 
     path = species.get(name)
     data = read_toml(path)

@@ -119,3 +119,21 @@ def test_leaves_give_the_same_leaves_for_a_shuffled_cloud(tmp_path):
     assert (out["as-written"] / "leaves.json").read_text().count('"id"') >= 1
     for f in ("leaves.json", "points.ply"):
         assert (out["as-written"] / f).read_bytes() == (out["shuffled"] / f).read_bytes(), f
+
+
+def test_a_perturbed_input_is_another_method_job_on_the_same_capture(monkeypatch):
+    """The study's order and jitter runs re-run the methods, never the plant, capture or mvs stage."""
+    from plantbench.runner.plan import make_plan
+    from plantbench.suites import load_suite
+
+    def keys():
+        plan = make_plan(load_suite("quick"))
+        return {kind: {k for k, j in plan.jobs.items() if j.kind == kind and j.params.get("method") != "mvs"}
+                for kind in ("plant", "capture", "method")}
+
+    monkeypatch.delenv(PERTURB_ENV, raising=False)
+    plain = keys()
+    monkeypatch.setenv(PERTURB_ENV, "jitter:1e-6:1")
+    jittered = keys()
+    assert plain["plant"] == jittered["plant"] and plain["capture"] == jittered["capture"]
+    assert plain["method"] and not plain["method"] & jittered["method"]

@@ -119,6 +119,21 @@ def _save_png(path: Path, array: np.ndarray) -> None:
     Image.fromarray(array).save(path, optimize=False, compress_level=6)
 
 
+CONVENTIONS = {
+    "depth": "float32 z-depth along the optical axis, metres, one ray through each pixel centre; inf where "
+             "the ray hits nothing (sky); the ground plane has finite depth and instance 0",
+    "instance": "uint16: 0 ground or sky, 1 wood, 2 + k leaf k",
+    "foliage": "uint8 mask, 255 where the pixel shows a leaf (instance >= 2)",
+    "cameras.json": "OpenCV pinhole, world-to-camera R, t; pixel (u, v) centred at integer (u, v)",
+    "colmap": "PINHOLE, pixel centres at +0.5 (cx, cy = OpenCV + 0.5); points3D are ground-truth surface "
+              "samples seen in >= 2 views",
+    "transforms.json": "nerfstudio: camera-to-world, OpenGL axes (+X right, +Y up, +Z back); cx, cy = "
+                       "OpenCV + 0.5 (pixel centres at index + 0.5)",
+    "mitsuba": "perspective sensor to_world = [R^T diag(-1, -1, 1) | C]",
+}
+"""What each file of a view capture holds, written into capture.json."""
+
+
 def capture_case(case_dir: str | os.PathLike, settings: Any = None, *, seed: int) -> Path:
     """Capture ``case_dir/plant/`` into ``case_dir/views/`` and (when ``settings.scan``) ``case_dir/scan/``.
 
@@ -180,18 +195,7 @@ def capture_case(case_dir: str | os.PathLike, settings: Any = None, *, seed: int
             "images": [f"{i:04d}.png" for i in range(len(cameras))],
             "scan": scan_summary,
             "leaf_pixels": leaves,
-            "conventions": {
-                "depth": "float32 z-depth along the optical axis, metres, one ray through each pixel centre; inf where "
-                         "the ray hits nothing (sky); the ground plane has finite depth and instance 0",
-                "instance": "uint16: 0 ground or sky, 1 wood, 2 + k leaf k",
-                "foliage": "uint8 mask, 255 where the pixel shows a leaf (instance >= 2)",
-                "cameras.json": "OpenCV pinhole, world-to-camera R, t; pixel (u, v) centred at integer (u, v)",
-                "colmap": "PINHOLE, pixel centres at +0.5 (cx, cy = OpenCV + 0.5); points3D are ground-truth surface "
-                          "samples seen in >= 2 views",
-                "transforms.json": "nerfstudio: camera-to-world, OpenGL axes (+X right, +Y up, +Z back); cx, cy = "
-                                   "OpenCV + 0.5 (pixel centres at index + 0.5)",
-                "mitsuba": "perspective sensor to_world = [R^T diag(-1, -1, 1) | C]",
-            },
+            "conventions": CONVENTIONS,
         }
         write_json(tmp_views / "capture.json", doc)
         _swap_in(case, tmp_views, tmp_scan)

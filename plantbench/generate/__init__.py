@@ -10,33 +10,9 @@ envelope, Palubicki et al. 2009's growth in :mod:`.palubicki`), :mod:`.weber_pen
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
-
-from plantbench.generate import space_colonisation as _sc
-from plantbench.generate import weber_penn as _wp
-from plantbench.generate.params import SpaceColonisationSpecies
-from plantbench.generate.params_wp import WeberPennSpecies
-from plantbench.plant import Plant
-from plantbench.schemas import Strict
+from plantbench.generate.families import FAMILIES, Family
 
 __all__ = ["Family", "FAMILIES", "generate_case", "grow_species", "species_stats", "plant_glb"]
-
-
-@dataclass(frozen=True)
-class Family:
-    """A generator family: the model that validates its species files and the function that grows a plant."""
-
-    name: str
-    params_model: type[Strict]
-    grow: Callable[..., Plant]
-    """``grow(spec, rng, *, scale=1.0) -> Plant``"""
-
-
-FAMILIES: dict[str, Family] = {
-    "space-colonisation": Family("space-colonisation", SpaceColonisationSpecies, _sc.grow),
-    "weber-penn": Family("weber-penn", WeberPennSpecies, _wp.grow),
-}
 
 
 def __getattr__(name: str):  # lazy: case.py imports trimesh only when used

@@ -23,7 +23,7 @@ _LEAF = [0.22, 0.50, 0.16, 1.0]
 
 def grow_species(species: str, seed: int, *, scale: float = 1.0) -> tuple[Plant, object]:
     """Grow ``species`` with the stream ``rng(seed, "generate", species)``; returns (plant, validated spec)."""
-    from plantbench.generate import FAMILIES
+    from plantbench.generate.families import FAMILIES
     from plantbench.species import load_species
 
     if not (0.0 < float(scale) <= 1.0):

@@ -29,7 +29,7 @@ def grow_prior(species: str, seed: int, height: float) -> Plant:
     The generators' ``scale`` grows a smaller plant of the species (size ~ scale^(1/3), fewer branches and leaves of
     the same size): the prior grows it once at full size (height H1) and, when ``height`` < H1, again at scale
     (height / H1)^3 from the same stream, so a small plant gets a small plant's branch and leaf counts."""
-    from plantbench.generate import FAMILIES
+    from plantbench.generate.families import FAMILIES
     from plantbench.seeding import rng
     from plantbench.species import load_species
 

@@ -28,7 +28,12 @@ from plantbench.report.gate import FLOORS, GATED, ToleranceEntry, Tolerances, ce
 
 __all__ = ["Perturbation", "PERTURBATIONS", "available_perturbations", "study_table", "tolerances_from_study",
            "run_study", "STUDY_COLUMNS", "another_cpu", "extend_study", "study_perturbations", "read_study",
-           "write_study"]
+           "write_study", "input_noise_against_grey", "INPUT_RUNS", "GREY_RUNS"]
+
+INPUT_RUNS = ("order", "jitter")
+"""The runs that change a points method's input and nothing else: a method must move no more under them than under
+the grey-level noise (:func:`input_noise_against_grey`)."""
+GREY_RUNS = ("noise1-a", "noise1-b", "noise1-c")
 
 STUDY_COLUMNS = ["perturbation", "method", "case", "metric", "value"]
 
@@ -201,6 +206,70 @@ def run_study(suite, out: Path, *, perturbations: list[Perturbation] | None = No
     return tables
 
 
+def input_noise_against_grey(study, metrics: tuple[str, ...] | None = None, *, pool_clouds: bool = True):
+    """Per (method, metric): the largest |change| from the reference over the cells (the cases and the mean) under
+    each run of :data:`INPUT_RUNS` and under the grey-level runs together, and whether the former stay within the
+    latter ('within'). With ``pool_clouds`` a method's cells on the mvs stage's oracle cloud (``NAME@oracle``) count
+    as its own: the grey-level noise never reaches the oracle cloud (exact depth), so on its own that cloud has no
+    noise to be held to. Methods whose input no run of INPUT_RUNS touches (a views method) show 0 there. Empty when
+    the study has no such runs."""
+    import pandas as pd
+
+    from plantbench.metrics.info import HEADLINE
+
+    metrics = HEADLINE if metrics is None else metrics
+    names = [n for n in INPUT_RUNS if n in set(study["perturbation"])]
+    grey = [n for n in GREY_RUNS if n in set(study["perturbation"])]
+    if not names or not grey:
+        return pd.DataFrame()
+    if pool_clouds:
+        cloud = study["method"].str.partition("@")[2]
+        study = study.assign(method=study["method"].str.partition("@")[0],
+                             case=study["case"] + cloud.where(cloud == "", "@" + cloud))
+    ref = study[study["perturbation"] == "reference"].set_index(["method", "case", "metric"])["value"]
+
+    def largest(runs):
+        run = study[study["perturbation"].isin(runs) & study["metric"].isin(metrics)]
+        change = (run.set_index(["method", "case", "metric"])["value"] - ref.reindex(
+            run.set_index(["method", "case", "metric"]).index)).abs()
+        return change.groupby(level=["method", "metric"]).max()
+
+    out = pd.DataFrame({"grey": largest(grey), **{n: largest([n]) for n in names}}).fillna(0.0)
+    out["within"] = (out[names].max(axis=1) <= out["grey"] + 1e-12)
+    return out.reset_index()
+
+
+def _input_section(study) -> list[str]:
+    table = input_noise_against_grey(study)
+    if table.empty:
+        return []
+    names = [n for n in INPUT_RUNS if n in table.columns]
+    bad = table[~table["within"]]
+    lines = ["", "## Meaningless changes of a method's input against the grey-level noise", "",
+             "Largest |change| from the reference over the cells (both clouds of a method), per method and headline "
+             "metric: "
+             + " / ".join(names) + " runs, then the largest of the three +-1 grey level runs. A method that moves more "
+             "under a shuffled or 1e-6 m moved cloud than under image noise has a defect (docs/tuning/determinism.md).",
+             "", "| method | metric | " + " | ".join(names) + " | grey level | within |", "|---|---|" + "---|" * (
+                 len(names) + 2)]
+    for r in table.itertuples(index=False):
+        d = r._asdict()
+        lines.append(f"| {d['method']} | {d['metric']} | " + " | ".join(f"{d[n]:.3g}" for n in names)
+                     + f" | {d['grey']:.3g} | {'yes' if d['within'] else 'NO'} |")
+    lines += ["", f"Within the grey-level noise: {int(table['within'].sum())} of {len(table)} (method, metric) pairs"
+              + ("." if bad.empty else "; not: " + ", ".join(f"{a} {b}" for a, b in zip(bad["method"], bad["metric"],
+                                                                                       strict=True)) + ".")]
+    alone = input_noise_against_grey(study, pool_clouds=False)
+    oracle = alone[alone["method"].str.contains("@")] if len(alone) else alone
+    if len(oracle):
+        worst = oracle.loc[oracle[names].max(axis=1).idxmax()]
+        lines += ["", "A method's cells on the oracle cloud count as its own above: the grey-level noise does not reach "
+                  "that cloud (exact depth), so on it alone there is no noise to hold a change to. Their largest change "
+                  f"under {' / '.join(names)}: {max(float(oracle[n].max()) for n in names):.3g} "
+                  f"({worst['method']} {worst['metric']})."]
+    return lines
+
+
 def study_markdown(study, tolerances: Tolerances, perturbations: list[Perturbation], *, header: str = "") -> str:
     """The study's report: what each run changed, how far it moved each headline metric (median and largest |change|
     from the reference over the cells), and the tolerances that follow."""
@@ -242,6 +311,7 @@ def study_markdown(study, tolerances: Tolerances, perturbations: list[Perturbati
         lines += ["", "Cells whose tolerance is set by each term: "
                   + ", ".join(f"{k} {int(bound.get(k, 0))}" for k in ("spread", "max_change", "floor"))
                   + f" (of {len(tol)})."]
+    lines += _input_section(study)
     return "\n".join(lines) + "\n"
 
 

@@ -71,6 +71,20 @@ def _split_options(options: dict) -> tuple[bool, str, str, dict, GuoParams]:
 class Guo:
     name = "guo"
     inputs = "points"
+    extra_options = {
+        "prior": (True, "Use the species hint's procedural prior (false: the generic one)."),
+        "leaves": ("auto", "'procedural', 'segment' (leaves fitted to the views), 'combined', or 'auto' (combined "
+                           "when depth maps come with the cloud)."),
+        "leaf_depth": ("mvs", "Depth the leaves are segmented on: 'mvs' or 'oracle' (an oracle run)."),
+    }
+
+    @property
+    def options_model(self) -> dict:
+        """What ``check_options`` validates and ``plantbench methods guo`` lists: its own parameters and the leaf
+        stage's as ``leaf__NAME``."""
+        from reference_impl.leaves import LeafParams
+
+        return {"": GuoParams, "leaf__": LeafParams}
     oracle_when = {"leaf_depth": "oracle"}
     """``leaf_depth="oracle"`` segments the leaves on the exact depth maps: an oracle run."""
 

@@ -78,6 +78,10 @@ class Leaves:
 
     name = "leaves"
     inputs = "points"
+    options_model = LeafParams
+    """What ``check_options`` validates and ``plantbench methods leaves`` lists."""
+    extra_options = {"depth": ("mvs", "Depth the leaves are segmented on: 'mvs' (the mvs stage's maps), 'oracle' "
+                                      "(the capture's exact depth: an oracle run) or a folder of per-view maps.")}
     oracle_when = {"depth": "oracle"}
     """``depth="oracle"`` segments on the exact depth maps: an oracle run."""
 

@@ -21,6 +21,8 @@ __all__ = ["Livny", "LivnyParams", "reconstruct_livny"]
 class Livny:
     name = "livny"
     inputs = "points"
+    options_model = LivnyParams
+    """What ``check_options`` validates and ``plantbench methods livny`` lists."""
 
     def check_options(self, options: dict) -> None:
         """Raise InputError on an unknown or invalid option (the planner calls it before any job runs)."""

@@ -141,6 +141,7 @@ class LivnyParams:
     radius_exponent: float = 0.5
     """Pipe model: r proportional to supported length^exponent [L, standard pipe model]."""
     trunk_fit_fraction: float = 0.05
+    """Base radius fitted to the cloud over this fraction of the height above the root [S, as xu's]."""
     trunk_axis_candidates: bool = True
     """The trunk cylinder is fitted along the orientation field at the root, along the stem's first
     ``trunk_fit_fraction`` of the height (the heaviest-child chain) and along the vertical, and the circle the most

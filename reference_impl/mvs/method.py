@@ -26,7 +26,7 @@ from .filtering import consistency_counts, masked_guided_filter, nearest_views
 from .fusion import fuse_views, voxel_downsample
 from .ground import plant_mask
 from .neighbours import depth_range, scene_centre, scene_scale, select_neighbours
-from .params import MVSParams
+from .params import FusionParams, MVSParams
 from .patchmatch import DepthMap, estimate_depth, refine_geometric, to_gray
 
 __all__ = ["MVS", "load_views", "depth_maps", "filter_depth_maps", "reconstruct_points"]
@@ -319,6 +319,9 @@ class MVS:
 
     name = "mvs"
     inputs = "views"
+    options_model = MVSParams
+    """What ``check_options`` validates and ``plantbench methods mvs`` lists (nested groups as ``GROUP__FIELD``)."""
+    extra_options = {"points": (FusionParams().points, "Target cloud size: the same as fusion__points.")}
     oracle_when = {"depth": "oracle"}
     """``depth="oracle"`` reads the exact depth and instance maps and plant.json: an oracle run."""
 

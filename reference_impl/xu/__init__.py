@@ -22,6 +22,8 @@ __all__ = ["Xu", "XuParams", "reconstruct_xu"]
 class Xu:
     name = "xu"
     inputs = "points"
+    options_model = XuParams
+    """What ``check_options`` validates and ``plantbench methods xu`` lists."""
 
     def check_options(self, options: dict) -> None:
         """Raise InputError on an unknown or invalid option (the planner calls it before any job runs)."""

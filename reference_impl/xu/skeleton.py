@@ -154,6 +154,23 @@ def _append(pos: list, par: list, geo: list, point_node: np.ndarray, sub: BinSke
     return range(off, len(pos))
 
 
+def _step_through(points, tree, attached, members, q_node: int, p_pos, base_geo: float, pos: list, par: list,
+                  geo: list, point_node) -> int:
+    """The segment PQ steps through the free points in the gap (:func:`bridge_waypoints`), each appended as a node
+    below the last; geodesic distances still run along PQ, so the detour does not end the probing any earlier.
+    Updates the lists and masks in place; returns the node the subgraph hangs from."""
+    free = ~attached
+    free[members] = False
+    for w in bridge_waypoints(points, tree, free, pos[q_node], p_pos):
+        geo.append(base_geo - float(np.linalg.norm(p_pos - points[w])))
+        pos.append(points[w])
+        par.append(q_node)
+        q_node = len(pos) - 1
+        point_node[w] = q_node
+        attached[w] = True
+    return q_node
+
+
 def probe_extend(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray, main: BinSkeleton,
                  attached: np.ndarray, *, width: float, cone_deg: float, gap: float, max_geodesic: float,
                  min_nodes: int = 2, tangent_nodes: int = 3, persistent: bool = False, large_share: float = 0.1,
@@ -219,17 +236,10 @@ def probe_extend(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray, m
                 break
         if q_node < 0:
             continue
-        q_pos, base_geo = pos[q_node], geo[q_node] + float(np.linalg.norm(p_pos - pos[q_node]))
-        if waypoints:  # the segment PQ steps through the free points in the gap; geodesic distances still run
-            free = ~attached  # along PQ, so the detour does not end the probing (max_geodesic) any earlier
-            free[members] = False
-            for w in bridge_waypoints(points, tree, free, q_pos, p_pos):
-                geo.append(base_geo - float(np.linalg.norm(p_pos - points[w])))
-                pos.append(points[w])
-                par.append(q_node)
-                q_node = len(pos) - 1
-                point_node[w] = q_node
-                attached[w] = True
+        base_geo = geo[q_node] + float(np.linalg.norm(p_pos - pos[q_node]))
+        if waypoints:
+            q_node = _step_through(points, tree, attached, members, q_node, p_pos, base_geo, pos, par, geo,
+                                   point_node)
         queue.extend(_append(pos, par, geo, point_node, sub, q_node, base_geo))
         attached[members] = True
         joined += 1

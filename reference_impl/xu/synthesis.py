@@ -200,6 +200,24 @@ class SynthesisResult:
     """Copies refused because an edge crossed empty space."""
 
 
+def _section_copy(table, pos: np.ndarray, par: np.ndarray, po: np.ndarray, pa: np.ndarray, pb: np.ndarray):
+    """The section O'A'B' of the scanned triangle most similar to OAB (Eq. 6; ties within 1 degree to the one with
+    more nodes), mapped onto OAB by the similarity transform. Returns the mapped positions, each copied node's
+    parent's index within the copy (its nodes are sorted) and whether that parent is in the copy (else it hangs
+    from O)."""
+    ang = triangle_angles(po, pa, pb)
+    dd, ii = table.tree.query(ang, k=min(8, len(table.o)))
+    dd, ii = np.atleast_1d(dd), np.atleast_1d(ii)
+    close = ii[dd <= dd[0] + 1.0]
+    t = int(close[np.argmax(table.detail[close])])
+    o2, a2, b2 = int(table.o[t]), int(table.a[t]), int(table.b[t])
+    nodes = section_nodes(par, o2, a2, b2)
+    s, rot, tr = similarity_transform(pos[[o2, a2, b2]], np.stack([po, pa, pb]))
+    mapped = (s * (rot @ pos[nodes].T)).T + tr
+    up = np.minimum(np.searchsorted(nodes, par[nodes]), len(nodes) - 1)
+    return mapped, up, nodes[up] == par[nodes]
+
+
 def synthesize(positions: np.ndarray, parents: np.ndarray, locations: np.ndarray, density: np.ndarray, *,
                d0: float, interval: tuple, group: float, iterations: int,
                max_nodes: int, cloud: cKDTree | None = None, tolerance: float | None = None,
@@ -256,20 +274,8 @@ def synthesize(positions: np.ndarray, parents: np.ndarray, locations: np.ndarray
             far = grp[(dist >= np.median(dist)) & (np.linalg.norm(locations[grp] - pa, axis=1) > group)]
             if len(far) == 0 or table.tree is None:
                 continue  # no two separate locations A and B (or no triangle to copy): nothing to synthesise
-            b_i = far[np.argmax(density[far])]
-            pb = locations[b_i]
-            ang = triangle_angles(po, pa, pb)
-            dd, ii = table.tree.query(ang, k=min(8, len(table.o)))
-            dd, ii = np.atleast_1d(dd), np.atleast_1d(ii)
-            close = ii[dd <= dd[0] + 1.0]
-            t = int(close[np.argmax(table.detail[close])])
-            o2, a2, b2 = int(table.o[t]), int(table.a[t]), int(table.b[t])
-            nodes = section_nodes(par, o2, a2, b2)
-            s, rot, tr = similarity_transform(pos[[o2, a2, b2]], np.stack([po, pa, pb]))
-            mapped = (s * (rot @ pos[nodes].T)).T + tr
-            # each copied node's parent within the copy (nodes is sorted), or O for the copy's first nodes
-            up = np.minimum(np.searchsorted(nodes, par[nodes]), len(nodes) - 1)
-            inside = nodes[up] == par[nodes]
+            pb = locations[far[np.argmax(density[far])]]
+            mapped, up, inside = _section_copy(table, pos, par, po, pa, pb)
             if crosses_empty(np.where(inside[:, None], mapped[up], po), mapped).any():
                 refused += 1
                 continue

@@ -248,3 +248,35 @@ def test_two_cpus_with_one_model_name_make_two_runs():
     assert zen4 == "AMD EPYC (family 25, model 17)" and zen5 == "AMD EPYC (family 26, model 2)"
     assert another_cpu(zen4).name != another_cpu(zen5).name
     assert cpu_name("processor\t: 0\nmodel name\t: Some CPU\n") == "Some CPU" and cpu_name("flags : x\n") is None
+
+
+def test_input_runs_are_held_to_the_grey_level_noise():
+    """Per method and metric: the largest change under the order and jitter runs against the largest under the grey
+    level runs, over every cell, as a naive loop computes it."""
+    from plantbench.report.variability import input_noise_against_grey
+
+    rng = np.random.default_rng(4)
+    rows = []
+    for run in ("reference", "noise1-a", "noise1-b", "order", "jitter"):
+        for method in ("livny", "xu"):
+            for case in ("a-1", "b-1", "mean"):
+                for metric in ("skeleton.vf1@1%", "stava.S_T"):
+                    rows.append({"perturbation": run, "method": method, "case": case, "metric": metric,
+                                 "value": rng.uniform(0, 1)})
+    study = pd.DataFrame(rows)
+    table = input_noise_against_grey(study, metrics=("skeleton.vf1@1%", "stava.S_T")).set_index(["method", "metric"])
+    for (method, metric), got in table.iterrows():
+        def largest(runs, method=method, metric=metric):
+            best = 0.0
+            for r in rows:
+                if r["perturbation"] in runs and r["method"] == method and r["metric"] == metric:
+                    ref = next(x["value"] for x in rows if x["perturbation"] == "reference" and x["method"] == method
+                               and x["case"] == r["case"] and x["metric"] == metric)
+                    best = max(best, abs(r["value"] - ref))
+            return best
+
+        assert got["grey"] == pytest.approx(largest({"noise1-a", "noise1-b"}))
+        assert got["jitter"] == pytest.approx(largest({"jitter"}))
+        assert got["within"] == (max(largest({"order"}), largest({"jitter"})) <= largest({"noise1-a", "noise1-b"}))
+    assert input_noise_against_grey(study[study["perturbation"] != "order"]).columns.tolist()[-1] == "within"
+    assert input_noise_against_grey(study[~study["perturbation"].isin(["order", "jitter"])]).empty
