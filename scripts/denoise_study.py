@@ -25,16 +25,9 @@ import numpy as np
 from scipy.ndimage import uniform_filter
 
 from plantbench.backend import load_mitsuba
+from plantbench.capture import views as cv
 from plantbench.capture.scene import scene_dict
 from plantbench.capture.settings import CaptureOptions
-from plantbench.capture.views import (
-    exact_maps,
-    ground_truth_caster,
-    ground_truth_mesh,
-    place_cameras,
-    render_colour,
-    to_srgb8,
-)
 from plantbench.io.plantio import read_plant
 from plantbench.seeding import rng
 
@@ -90,7 +83,7 @@ def main() -> None:
     surface = np.concatenate([plant.branch_mesh.vertices, plant.leaf_mesh.vertices])
     settings = [(a.reference_spp, False)] + [(int(s), d == "1") for s, d in (x.split(":") for x in a.settings.split(","))]
     o = CaptureOptions(views=a.views, width=a.size, height=a.size, scan=False)
-    cams = place_cameras(surface, o.views, elevation=o.elevation, fov_x_deg=o.fov_deg, width=o.width,
+    cams = cv.place_cameras(surface, o.views, elevation=o.elevation, fov_x_deg=o.fov_deg, width=o.width,
                          height=o.height, fill=o.fill)
     # the scene differs between settings only in its integrator (the denoising guides); the render takes its spp
     scenes: dict[bool, object] = {}
@@ -102,11 +95,11 @@ def main() -> None:
                            mi=mi)
             scenes[denoise] = mi.load_dict(d)
             if maps is None:
-                maps = exact_maps(cams[a.view], ground_truth_mesh(plant),
-                                  ground_truth_caster(plant, scene=scenes[denoise], scene_dict=d))
+                maps = cv.exact_maps(cams[a.view], cv.ground_truth_mesh(plant),
+                                  cv.ground_truth_caster(plant, scene=scenes[denoise], scene_dict=d))
         scene = scenes[denoise]
         t0 = time.perf_counter()
-        img = to_srgb8(render_colour(scene, a.view, spp=spp, seed=a.seed + a.view, mi=mi))
+        img = cv.to_srgb8(cv.render_colour(scene, a.view, spp=spp, seed=a.seed + a.view, mi=mi))
         seconds.append(time.perf_counter() - t0)
         images.append(img.astype(np.float64))
         print(f"{spp} spp{' denoised' if denoise else ''}: {seconds[-1]:.1f} s", flush=True)

@@ -40,7 +40,7 @@ from plantbench.io.atomic import atomic_write
 from plantbench.plant import Skeleton
 from plantbench.skeletons import children_lists, topological_order
 
-__all__ = ["COLUMNS", "MERGE_TOLERANCE", "skeleton_to_cylinders", "cylinders_to_skeleton", "write_qsm_csv",
+__all__ = ["COLUMNS", "MERGE_TOLERANCE", "skeleton_to_cylinders", "cylinders_to_skeleton", "write_qsm_csv", "read_csv_table",
            "read_qsm_csv"]
 
 COLUMNS = ("start_x", "start_y", "start_z", "axis_x", "axis_y", "axis_z", "length", "radius", "parent", "extension",
@@ -194,9 +194,9 @@ def write_qsm_csv(path: str | os.PathLike, skeleton: Skeleton) -> pd.DataFrame:
     return df
 
 
-def read_qsm_csv(path: str | os.PathLike) -> Skeleton:
-    """Read a cylinder table CSV (TreeQSM / rTwig columns; extra columns ignored) as a skeleton; InputError naming
-    the file on anything unreadable."""
+def read_csv_table(path: str | os.PathLike) -> pd.DataFrame:
+    """A CSV file as a DataFrame, column names stripped; InputError naming the file when it is missing or not a
+    readable CSV (the QSM tables here and the reference QSMs, :mod:`plantbench.io.references`)."""
     path = Path(path)
     if not path.is_file():
         raise InputError("file not found", path=path)
@@ -205,6 +205,14 @@ def read_qsm_csv(path: str | os.PathLike) -> Skeleton:
     except (pd.errors.EmptyDataError, pd.errors.ParserError, UnicodeDecodeError) as exc:
         raise InputError(f"not a readable CSV file ({exc})", path=path) from None
     df.columns = [str(col).strip() for col in df.columns]
+    return df
+
+
+def read_qsm_csv(path: str | os.PathLike) -> Skeleton:
+    """Read a cylinder table CSV (TreeQSM / rTwig columns; extra columns ignored) as a skeleton; InputError naming
+    the file on anything unreadable."""
+    path = Path(path)
+    df = read_csv_table(path)
     try:
         return cylinders_to_skeleton(df)
     except InputError as exc:

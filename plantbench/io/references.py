@@ -32,7 +32,7 @@ import numpy as np
 import pandas as pd
 
 from plantbench.errors import InputError
-from plantbench.io.qsm import COLUMNS
+from plantbench.io.qsm import COLUMNS, read_csv_table
 
 __all__ = ["TOOLS", "read_reference", "reference_in_case_frame"]
 
@@ -40,14 +40,7 @@ TOOLS = ("treeqsm", "simpleforest", "archi")
 
 
 def _read_csv(path: Path) -> pd.DataFrame:
-    if not path.is_file():
-        raise InputError("file not found", path=path)
-    try:
-        df = pd.read_csv(path, skipinitialspace=True)
-    except (pd.errors.EmptyDataError, pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise InputError(f"not a readable CSV file ({exc})", path=path) from None
-    df.columns = [str(c).strip() for c in df.columns]
-    return df
+    return read_csv_table(path)
 
 
 def _numeric(df: pd.DataFrame, names: list[str], path: Path, tool: str) -> dict[str, np.ndarray]:

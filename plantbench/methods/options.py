@@ -17,7 +17,7 @@ import inspect
 import re
 import textwrap
 import tomllib
-from dataclasses import dataclass
+from collections import namedtuple
 from typing import Any
 
 from plantbench.errors import InputError
@@ -25,12 +25,8 @@ from plantbench.errors import InputError
 __all__ = ["OptionInfo", "describe_options", "parse_option", "parse_options", "field_docstrings"]
 
 
-@dataclass(frozen=True)
-class OptionInfo:
-    name: str
-    default: Any
-    unit: str
-    meaning: str
+OptionInfo = namedtuple("OptionInfo", "name default unit meaning")
+"""One option of a method: its name, default, unit ('-' when it has none) and one line of meaning."""
 
 
 _UNITS = (  # (pattern on the name, unit), then (pattern on the docstring, unit); first match wins
@@ -43,8 +39,16 @@ _DOC_UNITS = (
 
 
 def field_docstrings(cls: type) -> dict[str, str]:
-    """Field name -> the string literal that follows its definition in ``cls``'s source (the attribute docstring
-    convention of Sphinx and PEP 257); {} when the source cannot be read."""
+    """Field name -> the string literal that follows its definition in the source of ``cls`` or of the class it
+    inherits the field from (the attribute docstring convention of Sphinx and PEP 257); a class whose source cannot
+    be read gives none."""
+    out: dict[str, str] = {}
+    for klass in reversed(cls.__mro__[:-1]):
+        out.update(_own_docstrings(klass))
+    return out
+
+
+def _own_docstrings(cls: type) -> dict[str, str]:
     try:
         tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
     except (OSError, TypeError, SyntaxError):

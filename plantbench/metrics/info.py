@@ -117,14 +117,11 @@ for _t in THRESHOLDS:
     for _k in ("precision", "recall", "f1"):
         _add(f"skeleton.{_k}@{_t:.1f}", "", True,
              f"skeleton sample {_k} within {_t:g} x local ground-truth radius (Smart-Tree protocol)")
-for _f in HEIGHT_FRACTIONS:
-    for _k in ("precision", "recall", "f1"):
-        _add(f"skeleton.v{_k}@{tau_label(_f)}", "", True,
-             f"volume-weighted skeleton {_k} within {tau_label(_f)} of plant height (wood pi r^2 x length)")
-for _f in HEIGHT_FRACTIONS:
-    for _k in ("precision", "recall", "f1"):
-        _add(f"skeleton.l{_k}@{tau_label(_f)}", "", True,
-             f"length-weighted skeleton {_k} within {tau_label(_f)} of plant height (every metre of branch alike)")
+for _w, _weighting in (("v", "volume-weighted skeleton {} within {} of plant height (wood pi r^2 x length)"),
+                      ("l", "length-weighted skeleton {} within {} of plant height (every metre of branch alike)")):
+    for _f in HEIGHT_FRACTIONS:
+        for _k in ("precision", "recall", "f1"):
+            _add(f"skeleton.{_w}{_k}@{tau_label(_f)}", "", True, _weighting.format(_k, tau_label(_f)))
 for _k, _what in (("precision", "matched / reconstructed branches"), ("recall", "matched / true branches"),
                   ("f1", "2 matched / (true + reconstructed branches)")):
     _add(f"skeleton.branch_{_k}@{tau_label(STRUCTURE_FRACTION)}", "", True,

@@ -6,7 +6,7 @@ metric's direction. The tolerances (``reports/tolerances.json``,
 beside it) come from the variability study (:mod:`plantbench.report.variability`): the suite run again under
 perturbations that carry no meaning, one tolerance per cell and metric, max(3 x spread, largest change seen, floor).
 A metric regresses when it moves in its bad direction by more than its tolerance, or when a cell that had a value
-in the baseline now has none (a method that newly fails). Improvements never fail the gate. Running times and the
+in the baseline now has none (a method that newly fails), unless the study saw that cell fail too (``may_fail``). Improvements never fail the gate. Running times and the
 other raw columns are not gated: they stay in the results table for reproduction.
 """
 
@@ -62,6 +62,8 @@ class ToleranceEntry(Strict):
     max_change: float = Field(ge=0, description="largest |change| from the reference run seen in the study")
     runs: int = Field(ge=0, description="runs of the study with a value in this cell")
     bound: str = Field(description="which term set the tolerance: 'spread' (3 x sd), 'max_change' or 'floor'")
+    may_fail: bool = Field(default=False, description="the cell failed in a run of the study (a meaningless "
+                                                      "perturbation): its failing now is not a regression")
 
 
 class Tolerances(Strict):
@@ -146,6 +148,7 @@ def compare(table, baseline: Baseline, tolerances: Tolerances | None = None):
 
     now = cell_values(table, tuple({e.metric for e in baseline.entries}))
     tol = {(t.method, t.case, t.metric): t.tolerance for t in (tolerances.entries if tolerances else [])}
+    flaky = {(t.method, t.case, t.metric) for t in (tolerances.entries if tolerances else []) if t.may_fail}
     floors = tolerances.floors if tolerances else FLOORS
     rows = []
     for e in baseline.entries:
@@ -154,7 +157,7 @@ def compare(table, baseline: Baseline, tolerances: Tolerances | None = None):
         tolerance, source = (tol[key], "study") if key in tol else (floors.get(e.metric, FLOORS.get(e.metric, 0.0)),
                                                                     "floor")
         if math.isnan(value):
-            regressed, delta = not math.isnan(e.value), float("nan")
+            regressed, delta = not math.isnan(e.value) and key not in flaky, float("nan")
         else:
             delta = value - e.value
             bad_move = -delta if e.higher_is_better else delta

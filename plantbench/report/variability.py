@@ -166,7 +166,8 @@ def tolerances_from_study(study, suite: str, *, reference: str = "reference",
 
     sd is the sample standard deviation (ddof 1) of the cell's finite values over all runs, the reference included;
     max |change| the largest distance of a run's value from the reference's. A cell whose value is missing in the
-    reference run gets no entry (the gate does not gate it)."""
+    reference run gets no entry (the gate does not gate it); one missing in another run is ``may_fail`` (it failed
+    under a meaningless perturbation: the gate does not count its failing as a regression, only its values)."""
     floors = dict(FLOORS if floors is None else floors)
     perturbations = [reference] + sorted(set(study["perturbation"]) - {reference})
     entries = []
@@ -176,6 +177,7 @@ def tolerances_from_study(study, suite: str, *, reference: str = "reference",
             continue
         ref_value = float(ref.iloc[0])
         values = grp["value"].to_numpy(float)
+        may_fail = bool(len(values) and not np.isfinite(values).all())
         values = values[np.isfinite(values)]
         sd = float(np.std(values, ddof=1)) if values.size > 1 else 0.0
         max_change = float(np.max(np.abs(values - ref_value)))
@@ -183,7 +185,8 @@ def tolerances_from_study(study, suite: str, *, reference: str = "reference",
         terms = {"spread": 3.0 * sd, "max_change": max_change, "floor": floor}
         bound = max(terms, key=terms.get)
         entries.append(ToleranceEntry(method=method, case=case, metric=metric, tolerance=terms[bound], sd=sd,
-                                      max_change=max_change, runs=int(values.size), bound=bound))
+                                      max_change=max_change, runs=int(values.size), bound=bound,
+                                      may_fail=may_fail))
     return Tolerances(suite=suite, perturbations=perturbations, floors={m: floors[m] for m in GATED if m in floors},
                       entries=entries)
 
@@ -311,6 +314,11 @@ def study_markdown(study, tolerances: Tolerances, perturbations: list[Perturbati
         lines += ["", "Cells whose tolerance is set by each term: "
                   + ", ".join(f"{k} {int(bound.get(k, 0))}" for k in ("spread", "max_change", "floor"))
                   + f" (of {len(tol)})."]
+        flaky = tol[tol["may_fail"]] if "may_fail" in tol else tol.iloc[:0]
+        if len(flaky):
+            cells = sorted({f"{m} {c}" for m, c in zip(flaky["method"], flaky["case"], strict=True)})
+            lines += ["", f"Cells that failed in a run of the study (the gate does not count their failing as a "
+                      f"regression): {', '.join(cells)}."]
     lines += _input_section(study)
     return "\n".join(lines) + "\n"
 

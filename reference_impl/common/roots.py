@@ -14,6 +14,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
@@ -26,8 +28,20 @@ from plantbench.skeletons import stem_at_height
 from reference_impl.common.graph import children_csr
 from reference_impl.common.radii import fit_trunk_radius
 
-__all__ = ["plant_groups", "find_roots", "stem_radius", "stem_radii", "candidate_axes", "trunk_axes", "half_gaps",
+__all__ = ["StemFitParams", "plant_groups", "find_roots", "stem_radius", "stem_radii", "candidate_axes", "trunk_axes", "half_gaps",
            "anchor_roots", "breast_height_scale", "refuse_implausible_radii"]
+
+
+@dataclass(frozen=True)
+class StemFitParams:
+    """The stem-fit parameters livny and xu share (their parameter dataclasses extend it)."""
+
+    breast_height_fit: bool = True
+    """Scale every radius so the stem's radius 1.3 m above the base matches a circle fitted to the cloud there, on
+    plants taller than 3 m whose stem shows bark at breast height (:func:`reference_impl.common.roots.
+    breast_height_scale`): the base fit takes in the root flare and the allometric taper overshoots the DBH [S]."""
+    min_radius_fraction: float = 0.0005
+    """Smallest radius, fraction of the plant height (0.5 mm on a 1 m plant) [S]."""
 
 
 def plant_groups(positions: np.ndarray, cell: float) -> np.ndarray:

@@ -10,23 +10,18 @@ from __future__ import annotations
 from pathlib import Path
 
 from plantbench.io.plantio import write_reconstruction
-from plantbench.schemas import params_from_options
 from plantbench.seeding import rng as seeded_rng
 from reference_impl.common.inputs import load_points
+from reference_impl.common.method import ParamsMethod
 from reference_impl.livny.bsg import LivnyParams, LivnyResult, reconstruct_livny
 
 __all__ = ["Livny", "LivnyParams", "reconstruct_livny"]
 
 
-class Livny:
+class Livny(ParamsMethod):
     name = "livny"
-    inputs = "points"
     options_model = LivnyParams
     """What ``check_options`` validates and ``plantbench methods livny`` lists."""
-
-    def check_options(self, options: dict) -> None:
-        """Raise InputError on an unknown or invalid option (the planner calls it before any job runs)."""
-        params_from_options(LivnyParams, options, method=self.name)
 
     def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None,
                     **options) -> LivnyResult:
@@ -34,7 +29,7 @@ class Livny:
 
         ``species`` is ignored (Livny et al. use no species knowledge). Returns the in-memory result.
         """
-        params = params_from_options(LivnyParams, options, method=self.name)
+        params = self.params(options)
         points = load_points(capture_dir)
         result = reconstruct_livny(points, seeded_rng(seed, "livny"), params)
         write_reconstruction(out_dir, result.skeleton, mesh=result.mesh, leaves=result.leaves)

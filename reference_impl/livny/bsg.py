@@ -61,6 +61,7 @@ from reference_impl.common.inputs import plant_height, split_ground
 from reference_impl.common.leaves import foliage_cells, sample_edges, skeleton_distance
 from reference_impl.common.radii import pipe_model_radii
 from reference_impl.common.roots import (
+    StemFitParams,
     anchor_roots,
     breast_height_scale,
     candidate_axes,
@@ -83,7 +84,7 @@ __all__ = ["LivnyParams", "LivnyResult", "reconstruct_livny", "orientation_field
 
 
 @dataclass(frozen=True)
-class LivnyParams:
+class LivnyParams(StemFitParams):
     """Parameters of the Livny-style baseline (source in brackets, see the module docstring)."""
 
     voxel_fraction: float = 0.0075
@@ -149,12 +150,6 @@ class LivnyParams:
     root on the bark closes a small circle on a patch of the bark, and which axis is skewed flips with a few
     centimetres of the root's position (AdTree's tree7: 2 or 12 cm; the multiview wp_oak: 5 or 32 cm; the patch
     circle holds 4 points, the bark 700-1000) [S: docs/tuning/xu.md]. False: the field alone."""
-    breast_height_fit: bool = True
-    """Scale every radius so the stem's radius 1.3 m above the base matches a circle fitted to the cloud there, on
-    plants taller than 3 m whose stem shows bark at breast height (:func:`reference_impl.common.roots.
-    breast_height_scale`): the base fit takes in the root flare and the allometric taper overshoots the DBH [S]."""
-    min_radius_fraction: float = 0.0005
-    """Smallest radius, fraction of the plant height (0.5 mm on a 1 m plant) [S]."""
     leaf_length_fraction: float = 0.025
     """Leaf blade length, fraction of the plant height [S; AdTree uses 0.05 of the bounding distance]."""
     lobe_fraction: float = 0.05

@@ -11,23 +11,18 @@ from __future__ import annotations
 from pathlib import Path
 
 from plantbench.io.plantio import write_reconstruction
-from plantbench.schemas import params_from_options
 from plantbench.seeding import rng as seeded_rng
 from reference_impl.common.inputs import load_points
+from reference_impl.common.method import ParamsMethod
 from reference_impl.xu.pipeline import XuParams, XuResult, reconstruct_xu
 
 __all__ = ["Xu", "XuParams", "reconstruct_xu"]
 
 
-class Xu:
+class Xu(ParamsMethod):
     name = "xu"
-    inputs = "points"
     options_model = XuParams
     """What ``check_options`` validates and ``plantbench methods xu`` lists."""
-
-    def check_options(self, options: dict) -> None:
-        """Raise InputError on an unknown or invalid option (the planner calls it before any job runs)."""
-        params_from_options(XuParams, options, method=self.name)
 
     def reconstruct(self, capture_dir: Path, out_dir: Path, *, seed: int, species: str | None = None,
                     **options) -> XuResult:
@@ -43,7 +38,7 @@ class Xu:
         hint = read_hint(capture_dir)
         if hint is not None and "leaf_size" not in options:
             options = {**options, "leaf_size": hint.leaf_length}
-        params = params_from_options(XuParams, options, method=self.name)
+        params = self.params(options)
         points = load_points(capture_dir)
         result = reconstruct_xu(points, seeded_rng(seed, "xu"), params)
         write_reconstruction(out_dir, result.skeleton, mesh=result.mesh, leaves=result.leaves)

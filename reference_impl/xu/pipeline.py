@@ -22,6 +22,7 @@ from reference_impl.common.ground import Ground
 from reference_impl.common.inputs import plant_height, split_ground
 from reference_impl.common.radii import murray_angle, wbe_murray_radii
 from reference_impl.common.roots import (
+    StemFitParams,
     anchor_roots,
     breast_height_scale,
     candidate_axes,
@@ -45,7 +46,7 @@ __all__ = ["XuParams", "XuResult", "reconstruct_xu", "adjust_branch_angles"]
 
 
 @dataclass(frozen=True)
-class XuParams:
+class XuParams(StemFitParams):
     """Parameters of the Xu-style baseline. Lengths marked "at 20 m" are scaled by height / reference_height."""
 
     reference_height: float = 20.0
@@ -127,12 +128,6 @@ class XuParams:
     height (the chain of largest supported length) and along the vertical, and the circle the most points lie on is
     kept (:func:`reference_impl.common.roots.stem_radii`; docs/tuning/xu.md) [S]. False: the first edge
     alone."""
-    breast_height_fit: bool = True
-    """Scale every radius so the stem's radius 1.3 m above the base matches a circle fitted to the cloud there, on
-    plants taller than 3 m whose stem shows bark at breast height (:func:`reference_impl.common.roots.
-    breast_height_scale`): the base fit takes in the root flare and the allometric taper overshoots the DBH [S]."""
-    min_radius_fraction: float = 0.0005
-    """Smallest radius, fraction of the height [S]."""
     leaf_bins: int = 4
     """Density bins for leaf clusters of 1..leaf_bins leaves per quad (section 6, Fig. 8) [S: Fig. 8 shows 4]."""
     leaf_jitter_deg: float = 10.0

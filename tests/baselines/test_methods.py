@@ -164,6 +164,7 @@ def test_xu_takes_the_leaf_size_from_the_species_hint(plant, tmp_path):
     """The xu method uses the hint's leaf length as the leaf-location cell and support distance (XuParams.leaf_size):
     its output equals reconstruct_xu with that leaf_size, and differs from the run without a hint (the cloud has
     foliage: blobs beside the branches, which become leaf locations)."""
+    from plantbench.geometry.clouds import canonical_order
     from plantbench.hints import load_hint, write_hint
 
     gt, pts = plant
@@ -177,7 +178,9 @@ def test_xu_takes_the_leaf_size_from_the_species_hint(plant, tmp_path):
     hint = load_hint("peach")
     write_hint(cap, hint)
     Xu().reconstruct(cap, tmp_path / "hint", seed=3)
-    direct = reconstruct_xu(read_points(cap / "points.ply")[0], seeded_rng(3, "xu"), XuParams(leaf_size=hint.leaf_length))
+    cloud = read_points(cap / "points.ply")[0]
+    cloud = cloud[canonical_order(cloud)]  # the order the method reads its cloud in
+    direct = reconstruct_xu(cloud, seeded_rng(3, "xu"), XuParams(leaf_size=hint.leaf_length))
     got = read_reconstruction(tmp_path / "hint")
     np.testing.assert_allclose(got.skeleton.positions, direct.skeleton.positions, atol=1e-6)
     assert len(got.leaves) == len(direct.leaves)

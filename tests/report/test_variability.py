@@ -280,3 +280,26 @@ def test_input_runs_are_held_to_the_grey_level_noise():
         assert got["within"] == (max(largest({"order"}), largest({"jitter"})) <= largest({"noise1-a", "noise1-b"}))
     assert input_noise_against_grey(study[study["perturbation"] != "order"]).columns.tolist()[-1] == "within"
     assert input_noise_against_grey(study[~study["perturbation"].isin(["order", "jitter"])]).empty
+
+
+def test_a_cell_the_study_saw_fail_may_fail_but_not_degrade():
+    """A cell that failed under a meaningless perturbation: failing now is not a regression, a worse value still is;
+    a cell that never failed in the study regresses when it fails."""
+    from plantbench.report.variability import study_table
+
+    def results(xu, livny):
+        return pd.DataFrame([{"case": "a-1", "method": m, "metric": "skeleton.vf1@1%", "value": v,
+                              "status": "ok" if v == v else "failed"} for m, v in (("xu", xu), ("livny", livny))])
+
+    study = study_table({"reference": results(0.5, 0.6), "noise1-a": results(float("nan"), 0.61),
+                         "noise1-b": results(0.52, 0.59)})
+    tol = tolerances_from_study(study, "t")
+    flags = {(e.method, e.case): e.may_fail for e in tol.entries}
+    assert flags[("xu", "a-1")] and flags[("xu", "mean")] and not flags[("livny", "a-1")]
+    baseline = make_baseline(_as_results(study, "reference"), "t")
+
+    now = results
+    regressed = lambda t: {(r.method, r.case) for r in compare(t, baseline, tol).itertuples() if r.regressed}  # noqa: E731
+    assert regressed(now(float("nan"), 0.6)) == set()
+    assert regressed(now(0.5, float("nan"))) == {("livny", "a-1"), ("livny", "mean")}
+    assert ("xu", "a-1") in regressed(now(0.3, 0.6))
