@@ -181,7 +181,7 @@ to watch its own workers at a 10-500 ms cadence is CPU taken from the jobs: the 
 the event-loop tick that detects a blocked loop (20 ms), the system monitor (500 ms) and the memory monitor
 (100 ms; the job's memory is in its own process, which it does not see anyway). Applied to the executor's own
 cluster; for one you start, set it before (or export ``DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False`` and the
-like, see the README). What each setting saves: docs/tuning/runner.md."""
+like, see docs/cluster.md). What each setting saves: docs/tuning/runner.md."""
 
 
 def _local_threads(client) -> int | None:
