@@ -33,8 +33,8 @@ from plantbench.paths import cache_dir
 
 __all__ = ["LLVM_CANDIDATES", "find_libllvm", "select_variant", "load_mitsuba", "apply_thread_budget",
            "BackendWarning", "LLVMTarget", "PINNED_TARGET", "requested_llvm_target", "pin_llvm_target",
-           "current_llvm_target", "load_drjit", "host_can_pin", "host_has", "host_cpu_name", "cpu_name", "llvm_target_id", "BLAS_PIN", "NUMPY_PIN",
-           "dispatch_environment", "pin_dispatch", "dispatch_id", "dispatch_seen",
+           "current_llvm_target", "load_drjit", "host_can_pin", "host_has", "host_cpu_name", "cpu_name", "llvm_target_id",
+           "BLAS_PIN", "NUMPY_PIN", "dispatch_environment", "pin_dispatch", "dispatch_id", "dispatch_seen",
            "EMBREE_PIN", "EMBREE_REQUIRES", "requested_embree_config", "pin_embree", "embree_config_seen",
            "thread_budget", "thread_map", "kdtree_workers"]
 
@@ -521,8 +521,7 @@ def dispatch_id() -> str:
     this process loaded, so a program that imported numpy before plantbench plans the same keys as the command
     line (:func:`dispatch_seen` reads what was loaded)."""
     env = dict(os.environ)
-    pin_dispatch(env)
-    pinned = dispatch_environment()
+    pinned = pin_dispatch(env)
     blas = env.get("OPENBLAS_CORETYPE") or "auto"
     npy = env.get("NPY_DISABLE_CPU_FEATURES", "")
     numpy_level = "auto" if not npy.strip() else NUMPY_PIN if npy == pinned.get("NPY_DISABLE_CPU_FEATURES") else (
@@ -537,8 +536,7 @@ def dispatch_seen() -> str:
     """What OpenBLAS and numpy dispatch to in this process, read from the loaded libraries (threadpoolctl, numpy's
     CPU feature table): 'blas:Haswell numpy:X86_V3' (recorded in a capture's capture.json, by the job that made
     it)."""
-    import numpy as np
-    import scipy.linalg  # noqa: F401 - loads SciPy's own OpenBLAS, so that its core is read too
+    import scipy.linalg  # noqa: F401 - loads SciPy's own OpenBLAS (and numpy's), so that both cores are read
     from threadpoolctl import threadpool_info
 
     cores = sorted({str(i.get("architecture")) for i in threadpool_info() if i.get("internal_api") == "openblas"})
@@ -550,5 +548,4 @@ def dispatch_seen() -> str:
         "X86_V3" if features.get("X86_V3", features.get("AVX2")) else "baseline")
     if level == "X86_V4" and features.get("AVX512_ICL"):
         level += "+AVX512_ICL"
-    del np
     return f"blas:{','.join(cores) or 'none'} numpy:{level}"

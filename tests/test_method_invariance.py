@@ -9,7 +9,13 @@ import pytest
 from plantbench.geometry.clouds import canonical_order
 from plantbench.io.ply import read_points, write_points
 from plantbench.methods.api import method_from_spec
-from plantbench.methods.inputs import PERTURB_ENV, input_perturbation, perturb_points, prepare_inputs
+from plantbench.methods.inputs import (
+    PERTURB_ENV,
+    InputPerturbation,
+    input_perturbation,
+    perturb_points,
+    prepare_inputs,
+)
 from tests.baselines.synthetic import random_tree, sample_surface
 
 
@@ -83,8 +89,7 @@ def test_the_study_perturbs_a_points_method_input(tmp_path, monkeypatch):
     with pytest.raises(Exception, match=PERTURB_ENV):
         input_perturbation()
     cols = np.arange(5)
-    p2, c2 = perturb_points(pts[:5], input_perturbation.__globals__["InputPerturbation"]("order", 4), "k",
-                            columns=cols)
+    p2, c2 = perturb_points(pts[:5], InputPerturbation("order", 4), "k", columns=cols)
     np.testing.assert_array_equal(p2, pts[:5][c2])
 
 

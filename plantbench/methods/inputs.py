@@ -32,7 +32,9 @@ import numpy as np
 
 from plantbench.errors import InputError
 
-__all__ = ["PERTURB_ENV", "InputPerturbation", "input_perturbation", "perturb_points", "prepare_inputs", "run_isolated", "is_oracle", "reads_ground_truth", "check_cloud", "read_input_points", "VIEW_ENTRIES", "GROUND_TRUTH"]
+__all__ = ["PERTURB_ENV", "InputPerturbation", "input_perturbation", "perturb_points", "prepare_inputs",
+           "run_isolated", "is_oracle", "reads_ground_truth", "check_cloud", "read_input_points", "VIEW_ENTRIES",
+           "GROUND_TRUTH"]
 
 VIEW_ENTRIES = ("images", "cameras.json", "transforms.json")
 """What a method reading views gets of ``views/`` as it is (besides colmap/ and capture.json, filtered)."""
@@ -77,21 +79,20 @@ def input_perturbation() -> InputPerturbation | None:
     raise InputError(f"{PERTURB_ENV} must be 'order:SEED' or 'jitter:AMPLITUDE:SEED', got {value!r}")
 
 
-def perturb_points(points: np.ndarray, perturbation: InputPerturbation | None, *keys, columns=None):
-    """``points`` under ``perturbation`` (the same draw for the same seed and ``keys``); None: unchanged. With
-    ``columns`` (one value per point, e.g. the scan's station) returns (points, columns), the columns reordered with
-    their points and never jittered."""
-    out, cols = points, columns
-    if perturbation is not None:
-        from plantbench.seeding import rng
+def perturb_points(points: np.ndarray, perturbation: InputPerturbation | None, *keys,
+                   columns: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """(points, columns) under ``perturbation`` (the same draw for the same seed and ``keys``); None: unchanged.
+    ``columns`` (one value per point, e.g. the scan's station, or None) follow their points in a new order and are
+    never jittered."""
+    if perturbation is None:
+        return points, columns
+    from plantbench.seeding import rng
 
-        gen = rng(perturbation.seed, "input-perturbation", perturbation.kind, *keys)
-        if perturbation.kind == "order":
-            order = gen.permutation(len(points))
-            out, cols = points[order], (None if columns is None else np.asarray(columns)[order])
-        else:
-            out = points + gen.uniform(-perturbation.amplitude, perturbation.amplitude, size=points.shape)
-    return out if columns is None else (out, cols)
+    gen = rng(perturbation.seed, "input-perturbation", perturbation.kind, *keys)
+    if perturbation.kind == "order":
+        order = gen.permutation(len(points))
+        return points[order], (None if columns is None else np.asarray(columns)[order])
+    return points + gen.uniform(-perturbation.amplitude, perturbation.amplitude, size=points.shape), columns
 
 
 def is_oracle(method, options: dict | None = None) -> bool:
@@ -147,12 +148,8 @@ def _copy_scan(src: Path, dest: Path) -> None:
         raise InputError("no scan/scan.ply: not a scan capture", path=src)
     pts, fields = read_points(ply)
     dest.mkdir(parents=True)
-    keep = {"station": fields["station"]} if "station" in fields else None
-    if keep is not None:
-        pts, keep["station"] = perturb_points(pts, input_perturbation(), "scan", columns=keep["station"])
-    else:
-        pts = perturb_points(pts, input_perturbation(), "scan")
-    write_points(dest / "scan.ply", pts, keep)
+    pts, station = perturb_points(pts, input_perturbation(), "scan", columns=fields.get("station"))
+    write_points(dest / "scan.ply", pts, None if station is None else {"station": station})
     if (src / "stations.json").is_file():
         shutil.copyfile(src / "stations.json", dest / "stations.json")
 
@@ -195,7 +192,7 @@ def prepare_inputs(dest: str | os.PathLike, capture_dir: str | os.PathLike, inpu
             raise InputError("a points method needs a point cloud: the mvs stage's points.ply or the capture's scan",
                              path=cloud)
         pts, _ = read_points(cloud)  # coordinates only: the scan's labels are ground truth
-        write_points(dest / "points.ply", perturb_points(pts, input_perturbation(), "points"))
+        write_points(dest / "points.ply", perturb_points(pts, input_perturbation(), "points")[0])
         if not oracle and (capture / "views" / "cameras.json").exists():
             _copy_views(capture / "views", dest / "views")
         if points_dir is not None and (Path(points_dir) / "depth").is_dir():  # the mvs stage's own depth maps

@@ -6,8 +6,9 @@ metric's direction. The tolerances (``reports/tolerances.json``,
 beside it) come from the variability study (:mod:`plantbench.report.variability`): the suite run again under
 perturbations that carry no meaning, one tolerance per cell and metric, max(3 x spread, largest change seen, floor).
 A metric regresses when it moves in its bad direction by more than its tolerance, or when a cell that had a value
-in the baseline now has none (a method that newly fails), unless the study saw that cell fail too (``may_fail``). Improvements never fail the gate. Running times and the
-other raw columns are not gated: they stay in the results table for reproduction.
+in the baseline now has none (a method that newly fails), unless the study saw that cell fail too (``may_fail``).
+Improvements never fail the gate. Running times and the other raw columns are not gated: they stay in the results
+table for reproduction.
 """
 
 from __future__ import annotations

@@ -81,7 +81,8 @@ PERTURBATIONS = (
     Perturbation("jitter", "every coordinate of every points method's input cloud moved by a uniform draw in "
                  "[-1e-6, 1e-6] m", env={PERTURB_ENV: "jitter:1e-6:1"}),
     Perturbation("blas-skylakex", "OpenBLAS's AVX-512 kernels (OPENBLAS_CORETYPE=SkylakeX: what an Intel Xeon or an "
-                 "AMD Zen 4 picks when the pin is overridden)", env={"PLANTBENCH_DISPATCH": "host", "OPENBLAS_CORETYPE": "SkylakeX"},
+                 "AMD Zen 4 picks when the pin is overridden)",
+                 env={"PLANTBENCH_DISPATCH": "host", "OPENBLAS_CORETYPE": "SkylakeX"},
                  requires="+avx512f,+avx512dq,+avx512vl,+avx512bw"),
     Perturbation("numpy-avx512", "numpy's and OpenCV's AVX-512 loops (NPY_DISABLE_CPU_FEATURES and "
                  "OPENCV_CPU_DISABLE empty: what an AVX-512 CPU runs when the pin is overridden)",
@@ -233,9 +234,8 @@ def input_noise_against_grey(study, metrics: tuple[str, ...] | None = None, *, p
 
     def largest(runs):
         run = study[study["perturbation"].isin(runs) & study["metric"].isin(metrics)]
-        change = (run.set_index(["method", "case", "metric"])["value"] - ref.reindex(
-            run.set_index(["method", "case", "metric"]).index)).abs()
-        return change.groupby(level=["method", "metric"]).max()
+        value = run.set_index(["method", "case", "metric"])["value"]
+        return (value - ref.reindex(value.index)).abs().groupby(level=["method", "metric"]).max()
 
     out = pd.DataFrame({"grey": largest(grey), **{n: largest([n]) for n in names}}).fillna(0.0)
     out["within"] = (out[names].max(axis=1) <= out["grey"] + 1e-12)

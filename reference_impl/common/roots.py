@@ -28,8 +28,8 @@ from plantbench.skeletons import stem_at_height
 from reference_impl.common.graph import children_csr
 from reference_impl.common.radii import fit_trunk_radius
 
-__all__ = ["StemFitParams", "plant_groups", "find_roots", "stem_radius", "stem_radii", "candidate_axes", "trunk_axes", "half_gaps",
-           "anchor_roots", "breast_height_scale", "refuse_implausible_radii"]
+__all__ = ["StemFitParams", "plant_groups", "find_roots", "stem_radius", "stem_radii", "candidate_axes", "trunk_axes",
+           "half_gaps", "anchor_roots", "breast_height_scale", "refuse_implausible_radii"]
 
 
 @dataclass(frozen=True)
