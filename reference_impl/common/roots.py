@@ -8,6 +8,8 @@
   best of several (:func:`candidate_axes`).
 - :func:`anchor_roots`: add a node on the ground plane under each root, so skeletons start on the ground like the
   ground truth does (ground removal trimmed the stem's lowest centimetres).
+- :func:`fit_stems` and :func:`finish_stems`: the steps livny and xu share, the stems' base radii fitted along
+  the candidate axes, then the ground nodes, the breast-height scale and the plausibility check.
 - :func:`breast_height_scale`: the factor that brings a skeleton's stem radius at breast height to the radius the
   cloud shows there (DBH measured, not extrapolated from the base).
 """
@@ -29,7 +31,8 @@ from reference_impl.common.graph import children_csr
 from reference_impl.common.radii import fit_trunk_radius
 
 __all__ = ["StemFitParams", "plant_groups", "find_roots", "stem_radius", "stem_radii", "candidate_axes", "trunk_axes",
-           "half_gaps", "anchor_roots", "breast_height_scale", "refuse_implausible_radii"]
+           "half_gaps", "anchor_roots", "breast_height_scale", "refuse_implausible_radii", "fit_stems",
+           "finish_stems"]
 
 
 @dataclass(frozen=True)
@@ -42,6 +45,16 @@ class StemFitParams:
     breast_height_scale`): the base fit takes in the root flare and the allometric taper overshoots the DBH [S]."""
     min_radius_fraction: float = 0.0005
     """Smallest radius, fraction of the plant height (0.5 mm on a 1 m plant) [S]."""
+    trunk_fit_fraction: float = 0.05
+    """Base radius fitted to the cloud over this fraction of the height above the root (Xu et al. section 5.2: from
+    the scan) [S]."""
+    trunk_axis_candidates: bool = True
+    """The trunk cylinder is fitted along the method's own axis at the root (livny: the orientation field; xu: the
+    root's first edge), along the stem's first ``trunk_fit_fraction`` of the height (the heaviest-child chain) and
+    along the vertical, and the circle the most points lie on is kept (:func:`stem_radii`): along a skewed axis, a
+    fit about a root on the bark closes a small circle on a patch of the bark, and which axis is skewed flips with a
+    few centimetres of the root's position (AdTree's tree7: 2 or 12 cm; the multiview wp_oak: 5 or 32 cm; the patch
+    circle holds 4 points, the bark 700-1000) [S: docs/tuning/xu.md]. False: the method's own axis alone."""
 
 
 def plant_groups(positions: np.ndarray, cell: float) -> np.ndarray:
@@ -377,3 +390,33 @@ def refuse_implausible_radii(radii: np.ndarray, height: float, method: str) -> N
     if not np.isfinite(r) or r > 0.5 * height:
         raise PlantbenchError(f"{method}: a branch radius of {r:.3g} m on a plant {height:.3g} m tall; no tree has a "
                               "radius above half its height: the reconstruction is refused")
+
+
+def fit_stems(points: np.ndarray, positions: np.ndarray, parents: np.ndarray, own_axes: np.ndarray,
+              weights: np.ndarray, params: StemFitParams, *, height: float, offset: float, fallback: float
+              ) -> np.ndarray:
+    """(k,) base radius of each stem of a skeleton (its roots: ``parents < 0``): :func:`stem_radii` over
+    ``params.trunk_fit_fraction`` of the height, along the method's ``own_axes`` (k, 3) or, with
+    ``params.trunk_axis_candidates``, the best of :func:`candidate_axes` (the heaviest chain by ``weights``)."""
+    roots = np.flatnonzero(parents < 0)
+    length = params.trunk_fit_fraction * height
+    axes = own_axes
+    if params.trunk_axis_candidates:
+        axes = candidate_axes(own_axes, positions, parents, weights, roots, length)
+    return stem_radii(points, positions[roots], axes, offset=offset, length=length, max_radius=0.1 * height,
+                      fallback=fallback, min_radius=params.min_radius_fraction * height)
+
+
+def finish_stems(points: np.ndarray, positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, ground_coef,
+                 params: StemFitParams, *, height: float, min_gap: float, method: str
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A skeleton's last steps: a ground node under each root (:func:`anchor_roots`, the ground plane
+    ``z = a x + b y + c`` of ``ground_coef``), every radius scaled to the breast-height fit
+    (:func:`breast_height_scale`, with ``params.breast_height_fit``), and the radii checked
+    (:func:`refuse_implausible_radii`). Returns ``positions``, ``parents``, ``radii``."""
+    gz = positions[:, 0] * ground_coef[0] + positions[:, 1] * ground_coef[1] + ground_coef[2]
+    positions, parents, radii, _ = anchor_roots(positions, parents, radii, gz, min_gap=min_gap)
+    if params.breast_height_fit:
+        radii = radii * breast_height_scale(points, positions, parents, radii)
+    refuse_implausible_radii(radii, height, method)
+    return positions, parents, radii

@@ -60,15 +60,7 @@ from reference_impl.common.ground import Ground
 from reference_impl.common.inputs import plant_height, split_ground
 from reference_impl.common.leaves import foliage_cells, sample_edges, skeleton_distance
 from reference_impl.common.radii import pipe_model_radii
-from reference_impl.common.roots import (
-    StemFitParams,
-    anchor_roots,
-    breast_height_scale,
-    candidate_axes,
-    find_roots,
-    refuse_implausible_radii,
-    stem_radii,
-)
+from reference_impl.common.roots import StemFitParams, find_roots, finish_stems, fit_stems
 from reference_impl.common.skeleton_ops import (
     branch_orders,
     merge_close_forks,
@@ -141,15 +133,6 @@ class LivnyParams(StemFitParams):
     """... and whose edge lengths differ by at most this factor [A: ratio in [0.5, 2]]."""
     radius_exponent: float = 0.5
     """Pipe model: r proportional to supported length^exponent [L, standard pipe model]."""
-    trunk_fit_fraction: float = 0.05
-    """Base radius fitted to the cloud over this fraction of the height above the root [S, as xu's]."""
-    trunk_axis_candidates: bool = True
-    """The trunk cylinder is fitted along the orientation field at the root, along the stem's first
-    ``trunk_fit_fraction`` of the height (the heaviest-child chain) and along the vertical, and the circle the most
-    points lie on is kept (:func:`reference_impl.common.roots.stem_radii`): along a skewed axis, a fit about a
-    root on the bark closes a small circle on a patch of the bark, and which axis is skewed flips with a few
-    centimetres of the root's position (AdTree's tree7: 2 or 12 cm; the multiview wp_oak: 5 or 32 cm; the patch
-    circle holds 4 points, the bark 700-1000) [S: docs/tuning/xu.md]. False: the field alone."""
     leaf_length_fraction: float = 0.025
     """Leaf blade length, fraction of the plant height [S; AdTree uses 0.05 of the bounding distance]."""
     lobe_fraction: float = 0.05
@@ -350,14 +333,9 @@ def _pipe_radii(pos: np.ndarray, parents: np.ndarray, plant: np.ndarray, *, voxe
     (cylinder fit along the field [A]) and the pipe-model radii anchored on them: ``(w, field, trunk, radii)``."""
     w = subtree_lengths(pos, parents) + voxel
     field = orientation_field(pos, parents, w)
-    roots = np.flatnonzero(parents < 0)
     min_r = params.min_radius_fraction * height
-    length = params.trunk_fit_fraction * height
-    axes = field[roots]
-    if params.trunk_axis_candidates:
-        axes = candidate_axes(axes, pos, parents, w, roots, length)
-    trunk = stem_radii(plant, pos[roots], axes, offset=voxel, length=length, max_radius=0.1 * height,
-                       fallback=2 * voxel, min_radius=min_r)
+    trunk = fit_stems(plant, pos, parents, field[parents < 0], w, params, height=height, offset=voxel,
+                      fallback=2 * voxel)
     radii = pipe_model_radii(w, parents, trunk, exponent=params.radius_exponent, min_radius=min_r)
     return w, field, trunk, radii
 
@@ -448,11 +426,8 @@ def reconstruct_livny(points: np.ndarray, rng: np.random.Generator, params: Livn
 
     # step 7: radii, anchored on the trunk fit; then the ground node under each root
     _, _, rr, radii = _pipe_radii(pos, parents, plant, voxel=voxel, height=height, params=params)
-    gz = pos[:, 0] * ground.coef[0] + pos[:, 1] * ground.coef[1] + ground.coef[2]
-    pos, parents, radii, _ = anchor_roots(pos, parents, radii, gz, min_gap=0.25 * voxel)
-    if params.breast_height_fit:
-        radii = radii * breast_height_scale(plant, pos, parents, radii)
-    refuse_implausible_radii(radii, height, "livny")
+    pos, parents, radii = finish_stems(plant, pos, parents, radii, ground.coef, params, height=height,
+                                       min_gap=0.25 * voxel, method="livny")
     skeleton = Skeleton(pos, np.maximum(radii, params.min_radius_fraction * height), parents,
                         branch_orders(parents, radii))
 

@@ -21,15 +21,7 @@ from reference_impl.common.graph import children_csr, median_spacing, radius_gra
 from reference_impl.common.ground import Ground
 from reference_impl.common.inputs import plant_height, split_ground
 from reference_impl.common.radii import murray_angle, wbe_murray_radii
-from reference_impl.common.roots import (
-    StemFitParams,
-    anchor_roots,
-    breast_height_scale,
-    candidate_axes,
-    find_roots,
-    refuse_implausible_radii,
-    stem_radii,
-)
+from reference_impl.common.roots import StemFitParams, find_roots, finish_stems, fit_stems
 from reference_impl.common.skeleton_ops import branch_orders, hermite_smooth, prune_short_tips, remove_nodes, simplify
 from reference_impl.xu.skeleton import bin_skeleton, probe_extend
 from reference_impl.xu.synthesis import (
@@ -121,13 +113,6 @@ class XuParams(StemFitParams):
     """Branching angles further than this from Eq. 3's prediction are adjusted (section 5.2) [S]."""
     angle_shift_limit: float = 0.5
     """The split point moves at most this fraction of the adjacent parent edges [S: "closer to", not onto]."""
-    trunk_fit_fraction: float = 0.05
-    """Base radius fitted to the cloud over this fraction of the height (section 5.2: from the scan) [S]."""
-    trunk_axis_candidates: bool = True
-    """The base radius is fitted along the root's first edge, along the stem's first ``trunk_fit_fraction`` of the
-    height (the chain of largest supported length) and along the vertical, and the circle the most points lie on is
-    kept (:func:`reference_impl.common.roots.stem_radii`; docs/tuning/xu.md) [S]. False: the first edge
-    alone."""
     leaf_bins: int = 4
     """Density bins for leaf clusters of 1..leaf_bins leaves per quad (section 6, Fig. 8) [S: Fig. 8 shows 4]."""
     leaf_jitter_deg: float = 10.0
@@ -339,22 +324,14 @@ def _radii_and_angles(pos: np.ndarray, par: np.ndarray, plant: np.ndarray, groun
     towards Eq. 3, then a ground node under each root. Returns the skeleton, the base radii and the number of
     adjusted branches."""
     min_r = params.min_radius_fraction * height
-    roots = np.flatnonzero(par < 0)
-    length = params.trunk_fit_fraction * height
-    axes = _stem_axes(pos, par)
-    if params.trunk_axis_candidates:
-        axes = candidate_axes(axes, pos, par, subtree_lengths(pos, par), roots, length)
-    rr = stem_radii(plant, pos[roots], axes, offset=radius, length=length, max_radius=0.1 * height,
-                    fallback=radius, min_radius=min_r)
+    rr = fit_stems(plant, pos, par, _stem_axes(pos, par), subtree_lengths(pos, par), params, height=height,
+                   offset=radius, fallback=radius)
     radii = wbe_murray_radii(pos, par, rr, wbe_exponent=params.wbe_exponent,
                              murray_exponent=params.murray_exponent, min_radius=min_r)
     pos, par, radii, nadj = adjust_branch_angles(pos, par, radii, tolerance_deg=params.angle_tolerance_deg,
                                                  shift_limit=params.angle_shift_limit)
-    gz = pos[:, 0] * ground.coef[0] + pos[:, 1] * ground.coef[1] + ground.coef[2]
-    pos, par, radii, _ = anchor_roots(pos, par, radii, gz, min_gap=0.25 * radius)
-    if params.breast_height_fit:
-        radii = radii * breast_height_scale(plant, pos, par, radii)
-    refuse_implausible_radii(radii, height, "xu")
+    pos, par, radii = finish_stems(plant, pos, par, radii, ground.coef, params, height=height,
+                                   min_gap=0.25 * radius, method="xu")
     return Skeleton(pos, np.maximum(radii, min_r), par, branch_orders(par, radii)), rr, nadj
 
 
