@@ -181,7 +181,7 @@ def capture_case(case_dir: str | os.PathLike, settings: Any = None, *, seed: int
             t0 = time.perf_counter()
             scan_summary = _write_scan(tmp_scan, plant, options, seed, caster, plant_json.species)
             timings["scan"] = time.perf_counter() - t0
-        leaves = _write_views(tmp_views, plant, cameras, scene, gt, caster, options, seed, mi, timings)
+        leaves, observed = _write_views(tmp_views, plant, cameras, scene, gt, caster, options, seed, mi, timings)
         doc = {
             "format": CAPTURE_FORMAT,
             "settings": options.model_dump(mode="json"),
@@ -195,6 +195,7 @@ def capture_case(case_dir: str | os.PathLike, settings: Any = None, *, seed: int
             "images": [f"{i:04d}.png" for i in range(len(cameras))],
             "scan": scan_summary,
             "leaf_pixels": leaves,
+            "observed_wood_share": observed,
             "conventions": CONVENTIONS,
         }
         write_json(tmp_views / "capture.json", doc)
@@ -253,12 +254,15 @@ def _write_scan(folder: Path, plant: Plant, options: CaptureOptions, seed: int, 
         "points": len(scan.points),
     }
     write_json(folder / "stations.json", doc)
-    return {"points": len(scan.points), "stations": len(scan.stations), "median_spacing": doc["median_spacing"]}
+    observed = _write_observed_scan(folder, plant, scan.points, scan.label)
+    return {"points": len(scan.points), "stations": len(scan.stations), "median_spacing": doc["median_spacing"],
+            "observed_wood_share": observed}
 
 
 def _write_views(folder: Path, plant: Plant, cameras: list[Camera], scene, gt, caster: RayCaster,
                  options: CaptureOptions, seed: int, mi, timings: dict[str, float]) -> dict:
-    """Writes the views; returns :func:`leaf_pixels` of their instance maps."""
+    """Writes the views and the wood they observed (``observed_wood.npz``); returns :func:`leaf_pixels` of their
+    instance maps and the observed share of the wood."""
     for sub in ("images", "depth", "instance", "foliage") + (("normal",) if options.normals else ()):
         (folder / sub).mkdir()
     names = [f"{i:04d}.png" for i in range(len(cameras))]
@@ -290,4 +294,33 @@ def _write_views(folder: Path, plant: Plant, cameras: list[Camera], scene, gt, c
     tracks: Tracks = visible_tracks(pts, inst, cameras, depths, instances, images)
     write_colmap_text(folder / "colmap", cameras, names, tracks)
     write_transforms(folder / "transforms.json", cameras, names)
-    return leaf_pixels(instances, len(plant.leaves))
+    observed = _write_observed_views(folder, plant, cameras, depths, instances)
+    return leaf_pixels(instances, len(plant.leaves)), observed
+
+
+def _write_observed_views(folder: Path, plant: Plant, cameras: list[Camera], depths: list[np.ndarray],
+                          instances: list[np.ndarray]) -> float:
+    """``folder/observed_wood.npz``: the share of each ground-truth edge's bark the views observed
+    (:mod:`plantbench.capture.observed`); returns the volume-weighted share of the wood."""
+    from plantbench.capture import observed as ob
+
+    samples = ob.wood_samples(plant.skeleton, step=ob.STEP_FRACTION * plant.height)
+    seen = ob.observed_in_views(samples, cameras, depths, instances)
+    share = ob.edge_shares(samples, seen, len(plant.skeleton.edges))
+    ob.write_observed(folder / ob.OBSERVED_FILE, plant.skeleton, share,
+                      {"depth_tolerance": ob.DEPTH_TOLERANCE, "min_views": ob.MIN_VIEWS,
+                       "min_diameter_px": ob.MIN_DIAMETER_PX})
+    return ob.observed_share(plant.skeleton, share)
+
+
+def _write_observed_scan(folder: Path, plant: Plant, points: np.ndarray, label: np.ndarray) -> float:
+    """``folder/observed_wood.npz``: the share of each ground-truth edge's bark within twice the scan's median
+    spacing of a wood return; returns the volume-weighted share of the wood."""
+    from plantbench.capture import observed as ob
+
+    tolerance = 2.0 * float(median_spacing(points)) if len(points) > 1 else 0.0
+    samples = ob.wood_samples(plant.skeleton, step=ob.STEP_FRACTION * plant.height)
+    seen = ob.observed_in_scan(samples, points[label == 0], tolerance)
+    share = ob.edge_shares(samples, seen, len(plant.skeleton.edges))
+    ob.write_observed(folder / ob.OBSERVED_FILE, plant.skeleton, share, {"tolerance_m": tolerance})
+    return ob.observed_share(plant.skeleton, share)

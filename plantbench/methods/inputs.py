@@ -39,12 +39,13 @@ __all__ = ["PERTURB_ENV", "InputPerturbation", "input_perturbation", "perturb_po
 VIEW_ENTRIES = ("images", "cameras.json", "transforms.json")
 """What a method reading views gets of ``views/`` as it is (besides colmap/ and capture.json, filtered)."""
 
-GROUND_TRUTH = ("plant", "views/depth", "views/instance", "views/foliage", "views/normal")
+GROUND_TRUTH = ("plant", "views/depth", "views/instance", "views/foliage", "views/normal", "views/observed_wood.npz",
+                "scan/observed_wood.npz")
 """Ground truth inside a capture: only oracles read it (and the scan's label, leaf_id columns)."""
 
-_CAPTURE_GROUND_TRUTH_KEYS = ("plant", "scan", "leaf_pixels")
+_CAPTURE_GROUND_TRUTH_KEYS = ("plant", "scan", "leaf_pixels", "observed_wood_share")
 """Keys of views/capture.json that describe the ground truth (the plant's species, seed and height; the scan's
-label counts; the leaves' pixel counts): dropped from a method's copy."""
+label counts; the leaves' pixel counts; the share of the wood the views observed): dropped from a method's copy."""
 
 
 PERTURB_ENV = "PLANTBENCH_PERTURB_INPUT"

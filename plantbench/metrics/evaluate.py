@@ -66,10 +66,10 @@ class EvaluateOptions:
 
 
 def evaluate(case_dir: str | os.PathLike, recon_dir: str | os.PathLike, *,
-             options: EvaluateOptions = EvaluateOptions(), observed: np.ndarray | None = None
-             ) -> dict[str, float | None]:
+             options: EvaluateOptions = EvaluateOptions(), observed: np.ndarray | None = None,
+             observed_from: str | None = None) -> dict[str, float | None]:
     """All metrics of one reconstruction: metric name -> value (None where it cannot apply)."""
-    return evaluate_detailed(case_dir, recon_dir, options=options, observed=observed)[0]
+    return evaluate_detailed(case_dir, recon_dir, options=options, observed=observed, observed_from=observed_from)[0]
 
 
 def _set(values: dict, reasons: dict, prefix: str, result: dict | None, reason: str | None = None) -> None:
@@ -111,17 +111,41 @@ def _read_masks(case: Path, cameras: list, images: list[str]) -> list[np.ndarray
     return masks
 
 
+def _observed_wood(case: Path, plant, observed_from: str | None) -> tuple[np.ndarray | None, str]:
+    """The share of each ground-truth edge the capture observed (:mod:`plantbench.capture.observed`), from the
+    views' or the scan's file (``observed_from``; None: the views', else the scan's), or None and why."""
+    from plantbench.capture.observed import OBSERVED_FILE, read_observed
+
+    if plant is None:
+        return None, "no ground truth (case has no plant/)"
+    if observed_from not in (None, "views", "scan"):
+        raise InputError(f"observed_from must be 'views' or 'scan', got {observed_from!r}")
+    order = [observed_from] if observed_from else ["views", "scan"]
+    for part in order:
+        path = case / part / OBSERVED_FILE
+        if path.is_file():
+            return read_observed(path, plant.skeleton), ""
+    return None, f"no {' or '.join(f'{p}/{OBSERVED_FILE}' for p in order)} in the capture (made before issue 63?)"
+
+
 def _skeleton_metrics(values: dict, reasons: dict, plant, skeleton, samples, options: EvaluateOptions,
-                      no_plant: str) -> None:
+                      no_plant: str, gt_observed: tuple[np.ndarray | None, str] = (None, "")) -> None:
     """The ``skeleton.*`` metrics: the reconstruction's own traits (height, branches, lengths, DBH, crown area) with
     or without ground truth; P/R/F1 and the errors against the ground truth only with it. ``samples``: the
-    skeleton's (:func:`~plantbench.metrics.skeleton.skeleton_samples`)."""
+    skeleton's (:func:`~plantbench.metrics.skeleton.skeleton_samples`); ``gt_observed``: the share of each
+    ground-truth edge the capture observed, or None and why (:func:`_observed_wood`)."""
     from plantbench.metrics.points import tau_label
-    from plantbench.metrics.skeleton import STRUCTURE_FRACTION, crown_area, skeleton_attributes, skeleton_prf
+    from plantbench.metrics.skeleton import (
+        STRUCTURE_FRACTION,
+        crown_area,
+        skeleton_attributes,
+        skeleton_prf,
+        skeleton_samples,
+    )
     from plantbench.metrics.structure import branch_count_log2_error, branch_prf
 
     if skeleton is None:
-        for prefix in ("skeleton", "qsm"):
+        for prefix in ("skeleton", "qsm", "capture"):
             _set(values, reasons, prefix, None, "no skeleton.ply in the output")
         return
     a = skeleton_attributes(skeleton, breast_height=options.breast_height)
@@ -134,9 +158,23 @@ def _skeleton_metrics(values: dict, reasons: dict, plant, skeleton, samples, opt
     if plant is None:
         _set(values, reasons, "skeleton", traits, "trunk below breast height, or no branch")
         _set(values, reasons, "skeleton", None, no_plant)  # P/R/F1 and every error
+        _set(values, reasons, "capture", None, no_plant)
         return
-    prf = skeleton_prf(plant.skeleton, samples, step=options.skeleton_step,
-                       height=plant.height if plant.height > 0 else None)
+    gt_samples = skeleton_samples(plant.skeleton, options.skeleton_step)
+    share, why = gt_observed
+    if share is not None:
+        w = gt_samples.weights(True)[:gt_samples.edge_samples]
+        _set(values, reasons, "capture", {"observed_wood_share": float((w * share[gt_samples.edge]).sum() / w.sum())
+                                          if w.sum() > 0 else None}, "the ground truth has no wood")
+    else:
+        _set(values, reasons, "capture", None, why)
+    prf = skeleton_prf(gt_samples, samples, step=options.skeleton_step,
+                       height=plant.height if plant.height > 0 else None,
+                       gt_observed=share if plant.height > 0 else None)
+    if share is None:
+        _set(values, reasons, "skeleton", {k.split(".", 1)[1]: None for k in METRICS
+                                           if k.startswith(("skeleton.vf1_observed@", "skeleton.vrecall_hidden@"))},
+             why)
     a_gt = skeleton_attributes(plant.skeleton, breast_height=options.breast_height)
     structure = {"branch_count_log2_error": branch_count_log2_error(a_gt["branch_count"], a["branch_count"])}
     if plant.height > 0 and a_gt["branch_count"] > 0:
@@ -324,12 +362,14 @@ def _mesh_metrics(values: dict, reasons: dict, plant, mesh, scan: np.ndarray | N
 
 
 def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike, *,
-                      options: EvaluateOptions = EvaluateOptions(), observed: np.ndarray | None = None
-                      ) -> tuple[dict[str, float | None], dict[str, str]]:
+                      options: EvaluateOptions = EvaluateOptions(), observed: np.ndarray | None = None,
+                      observed_from: str | None = None) -> tuple[dict[str, float | None], dict[str, str]]:
     """Like :func:`evaluate`, plus metric name -> reason for every None value.
 
     ``observed`` : (m, 3) float, the points the capture gave for the GT-free skeleton support; None: the case's
-    ``scan/scan.ply``."""
+    ``scan/scan.ply``. ``observed_from``: 'views' or 'scan', the capture the method read, whose observed wood
+    splits the skeleton's recall into observation and inference (``skeleton.vf1_observed@*``,
+    ``skeleton.vrecall_hidden@*``, ``capture.observed_wood_share``); None: the views', else the scan's."""
     from plantbench.io.plantio import read_plant, read_reconstruction
     from plantbench.io.ply import read_points
     from plantbench.metrics.skeleton import skeleton_samples
@@ -355,7 +395,8 @@ def evaluate_detailed(case_dir: str | os.PathLike, recon_dir: str | os.PathLike,
         for prefix, res in zip(("stava", "stava_nosplit"), both):
             _set(values, reasons, prefix, res.as_dict())
     samples = skeleton_samples(recon.skeleton, options.skeleton_step) if recon.skeleton is not None else None
-    _skeleton_metrics(values, reasons, plant, recon.skeleton, samples, options, no_plant)
+    _skeleton_metrics(values, reasons, plant, recon.skeleton, samples, options, no_plant,
+                      _observed_wood(case, plant, observed_from))
 
     # ---- GT-free support of the skeleton by the observed points
     scan_path = case / "scan" / "scan.ply"

@@ -39,7 +39,7 @@ truth.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -66,12 +66,14 @@ class SkeletonSamples:
     points : (k, 3) float; radii : (k,) float, linearly interpolated along the edge
     length : (k,) float, the edge length each sample covers; 0 for the node samples, which come last
     edge_samples : how many samples lie on edges (the first ones)
+    edge : (edge_samples,) index into ``Skeleton.edges`` of each edge sample's edge
     """
 
     points: np.ndarray
     radii: np.ndarray
     length: np.ndarray
     edge_samples: int
+    edge: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     @functools.cached_property
     def tree(self):
@@ -104,7 +106,7 @@ def skeleton_samples(skeleton: Skeleton, step: float = 0.001) -> SkeletonSamples
     pts = p0[seg] + t[:, None] * dp[seg]
     return SkeletonSamples(points=np.concatenate([pts, pos]), radii=np.concatenate([r0[seg] + t * dr[seg], rad]),
                            length=np.concatenate([np.repeat(length / n, n), np.zeros(len(skeleton))]),
-                           edge_samples=len(pts))
+                           edge_samples=len(pts), edge=seg)
 
 
 def _samples(skeleton: Skeleton | SkeletonSamples, step: float) -> SkeletonSamples:
@@ -136,11 +138,18 @@ def _weighted_share(weights: np.ndarray, inside: np.ndarray) -> float:
 
 def skeleton_prf(gt: Skeleton | SkeletonSamples, pred: Skeleton | SkeletonSamples, *,
                  thresholds: tuple[float, ...] = THRESHOLDS, step: float = 0.001, height: float | None = None,
-                 height_fractions: tuple[float, ...] = HEIGHT_FRACTIONS) -> dict[str, float]:
+                 height_fractions: tuple[float, ...] = HEIGHT_FRACTIONS,
+                 gt_observed: np.ndarray | None = None) -> dict[str, float]:
     """Keys 'precision@t', 'recall@t', 'f1@t' for each threshold t (multiples of the local ground-truth radius) and,
     when ``height`` (the ground-truth plant height, metres) is given, 'vprecision@f', 'vrecall@f', 'vf1@f'
     (volume-weighted) and 'lprecision@f', 'lrecall@f', 'lf1@f' (length-weighted) for each height fraction f
     (labelled as :func:`plantbench.metrics.points.tau_label` does: '1%').
+
+    With ``gt_observed`` ((e,) the share of each ground-truth edge the capture observed,
+    :mod:`plantbench.capture.observed`) and ``height``, also 'vf1_observed@f' (the volume-weighted precision against
+    the whole truth with the recall over the observed wood only: each ground-truth sample weighs its volume times its
+    edge's observed share) and 'vrecall_hidden@f' (the recall over the rest, the wood the method had to infer; None
+    when every part of the wood was observed).
 
     ``gt`` and ``pred`` may be given as their samples (:func:`skeleton_samples`, when the caller shares them with
     other metrics); ``step`` is then theirs."""
@@ -179,6 +188,33 @@ def skeleton_prf(gt: Skeleton | SkeletonSamples, pred: Skeleton | SkeletonSample
                 out[f"{kind}precision@{lab}"] = prec
                 out[f"{kind}recall@{lab}"] = rec
                 out[f"{kind}f1@{lab}"] = 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0
+        if gt_observed is not None:
+            out.update(_observed_scores(g, gt_observed, d_g if len(p.points) else None, taus, height_fractions,
+                                        out))
+    return out
+
+
+def _observed_scores(g: SkeletonSamples, gt_observed: np.ndarray, d_g: np.ndarray | None, taus: list[float],
+                     fractions: tuple[float, ...], scores: dict) -> dict[str, float | None]:
+    """'vf1_observed@f' and 'vrecall_hidden@f' of :func:`skeleton_prf`; ``d_g``: (k,) the ground-truth samples'
+    distances as thresholded there (None without predicted samples)."""
+    from plantbench.metrics.points import tau_label
+
+    share = np.asarray(gt_observed, float)
+    if share.ndim != 1 or len(g.edge) != g.edge_samples or (len(g.edge) and int(g.edge.max()) >= len(share)):
+        raise ValueError("gt_observed needs one share per ground-truth edge")
+    e = g.edge_samples
+    w = g.weights(True)[:e]
+    seen, hidden = w * share[g.edge], w * (1.0 - share[g.edge])
+    out: dict[str, float | None] = {}
+    for f, tau in zip(fractions, taus):
+        lab = tau_label(f)
+        near = d_g[:e] < tau if d_g is not None else np.zeros(e, bool)
+        rec = float(seen[near].sum() / seen.sum()) if seen.sum() > 0 else 0.0
+        prec = scores[f"vprecision@{lab}"]
+        out[f"vf1_observed@{lab}"] = 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0
+        out[f"vrecall_hidden@{lab}"] = float(hidden[near].sum() / hidden.sum()) if hidden.sum() > 1e-12 * w.sum() \
+            else None
     return out
 
 

@@ -404,9 +404,11 @@ def _method_jobs(plan: Plan, s: Suite, resolved: dict, case: _Case, sweep_value,
             {"method": spec, "case": case.key, "points": points_key,
              "seed": case.seed, "species": case.hint_species, "options": options},
             deps=tuple(deps), timeout_s=s.timeout_s))
+        observed_from = "scan" if method.inputs == "scan" else None  # (None: the views', else the scan's)
         metrics_key = plan.add(Job("metrics", content_hash(
-            ["metrics", recon_key, version_code["metrics"]]),
-            {"case": case.key, "recon": recon_key}, deps=(recon_key,), timeout_s=s.timeout_s))
+            ["metrics", recon_key, version_code["metrics"], observed_from]),
+            {"case": case.key, "recon": recon_key, "observed_from": observed_from}, deps=(recon_key,),
+            timeout_s=s.timeout_s))
         plan.cells.append(Cell(case.id, case.species, case.family, case.seed, name, sweep_value,
                                recon_key, metrics_key, case.key))
 

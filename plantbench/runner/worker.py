@@ -102,7 +102,8 @@ def run_job(cache: Path, kind: str, key: str, folder: Path, params: dict) -> dic
         elif kind == "metrics":
             from plantbench.metrics.evaluate import evaluate
 
-            results = evaluate(job_folder(cache, "capture", params["case"]), job_folder(cache, "method", params["recon"]))
+            results = evaluate(job_folder(cache, "capture", params["case"]), job_folder(cache, "method", params["recon"]),
+                               observed_from=params.get("observed_from"))
             write_json(folder / "metrics.json", results)
         else:
             raise ValueError(f"unknown job kind {kind!r}")
