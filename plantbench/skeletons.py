@@ -6,7 +6,8 @@ import numpy as np
 
 from plantbench.plant import Skeleton
 
-__all__ = ["children_lists", "branch_chains", "chain_lengths", "topological_order", "stem_at_height"]
+__all__ = ["children_lists", "branch_chains", "chain_lengths", "topological_order", "stem_at_height",
+           "stem_edge_at_height"]
 
 
 def children_lists(skeleton: Skeleton) -> list[np.ndarray]:
@@ -19,9 +20,9 @@ def children_lists(skeleton: Skeleton) -> list[np.ndarray]:
     return np.split(order, np.cumsum(counts)[:-1]) if n else []
 
 
-def stem_at_height(skeleton: Skeleton, z: float) -> tuple[np.ndarray, np.ndarray, float] | None:
-    """Where the stem crosses height ``z``: (point, unit direction of that edge, radius interpolated there), or None
-    when it does not reach ``z``. The stem starts at the thickest root and follows the thickest child."""
+def stem_edge_at_height(skeleton: Skeleton, z: float) -> tuple[int, int] | None:
+    """The stem's edge (parent, child) that crosses height ``z``, or None when the stem does not reach ``z``. The
+    stem starts at the thickest root and follows the thickest child."""
     if len(skeleton) == 0:
         return None
     pos, rad = skeleton.positions, skeleton.radii
@@ -32,11 +33,23 @@ def stem_at_height(skeleton: Skeleton, z: float) -> tuple[np.ndarray, np.ndarray
         nxt = int(kids[node][np.argmax(rad[kids[node]])])
         a, b = pos[node], pos[nxt]
         if (a[2] - z) * (b[2] - z) <= 0 and a[2] != b[2]:
-            f = (z - a[2]) / (b[2] - a[2])
-            d = b - a
-            return a + f * d, d / np.linalg.norm(d), float(rad[node] + f * (rad[nxt] - rad[node]))
+            return node, nxt
         node = nxt
     return None
+
+
+def stem_at_height(skeleton: Skeleton, z: float) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """Where the stem crosses height ``z``: (point, unit direction of that edge, radius interpolated there), or None
+    when it does not reach ``z`` (:func:`stem_edge_at_height`)."""
+    edge = stem_edge_at_height(skeleton, z)
+    if edge is None:
+        return None
+    node, nxt = edge
+    pos, rad = skeleton.positions, skeleton.radii
+    a, b = pos[node], pos[nxt]
+    f = (z - a[2]) / (b[2] - a[2])
+    d = b - a
+    return a + f * d, d / np.linalg.norm(d), float(rad[node] + f * (rad[nxt] - rad[node]))
 
 
 def topological_order(skeleton: Skeleton) -> np.ndarray:

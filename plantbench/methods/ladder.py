@@ -18,7 +18,9 @@ the runner like any method and ask of every metric whether it orders them as the
 - ``prior-a``, ``prior-b``: the no-data prior (:func:`plantbench.methods.prior.grow_prior`) with seeds 0 and 1,
   scaled to the ground truth's height (seed 1 is the suite's own ``prior`` row when the case seed is 1);
 - ``other-species``: the next species of the same family in the library (by name, cyclic), grown as the prior
-  grows it, scaled to the same height.
+  grows it, scaled to the same height;
+- ``observed``: the ground truth cut to the wood its capture's views observed (:func:`cut_to_observed`): it must
+  score ``skeleton.vf1_observed@1%`` about 1 and ``skeleton.vrecall_hidden@1%`` about 0.
 
 Random draws come from ``rng(seed, "ladder", NAME)``: a rung is the same bytes for the same seed.
 """
@@ -34,8 +36,8 @@ import numpy as np
 from plantbench.errors import InputError
 from plantbench.plant import Leaf, Plant, Skeleton, TriMesh
 
-__all__ = ["RUNGS", "Rung", "LadderMethod", "ladder_method", "build_rung", "prune", "jitter", "move_leaves",
-           "add_twigs", "tangle", "other_species"]
+__all__ = ["RUNGS", "OBSERVED_RUNG", "Rung", "LadderMethod", "ladder_method", "build_rung", "prune",
+           "cut_to_observed", "jitter", "move_leaves", "add_twigs", "tangle", "other_species"]
 
 PREFIX = "ladder:"
 
@@ -76,8 +78,35 @@ def prune(plant: Plant, max_order: int) -> Plant:
     keep = sk.order <= max_order
     if len(sk) and not keep[sk.parents[keep & (sk.parents >= 0)]].all():
         raise InputError("prune: a kept node's parent has a higher branch order (orders must not fall along a path)")
+    return _subplant(plant, keep, sk.parents >= 0)
+
+
+def cut_to_observed(plant: Plant, share: np.ndarray, *, min_share: float = 0.5) -> Plant:
+    """The plant cut to the wood its capture observed: the edges (``Skeleton.edges`` order) whose observed
+    ``share`` (:mod:`plantbench.capture.observed`) is at least ``min_share``, with their end nodes and the leaves of
+    those nodes; a kept node whose own edge is hidden starts a new stem (a root). The calibration rung that scores
+    observation 1 and inference 0."""
+    sk = plant.skeleton
+    share = np.asarray(share, float)
+    child = np.flatnonzero(sk.parents >= 0)
+    if share.shape != (len(child),):
+        raise InputError(f"cut_to_observed: {len(share)} shares for {len(child)} edges")
+    seen_edge = np.zeros(len(sk), bool)  # per node: its own edge (to its parent) observed
+    seen_edge[child] = share >= min_share
+    keep = seen_edge.copy()
+    keep[sk.parents[seen_edge]] = True
+    return _subplant(plant, keep, seen_edge)
+
+
+def _subplant(plant: Plant, keep: np.ndarray, link: np.ndarray) -> Plant:
+    """The plant's nodes where ``keep`` (and their leaves), each joined to its parent where ``link`` (the parent
+    kept too), else a root; wood mesh rebuilt."""
+    sk = plant.skeleton
     new_index = np.cumsum(keep) - 1
-    parents = np.where(sk.parents[keep] >= 0, new_index[np.maximum(sk.parents[keep], 0)], -1)
+    par = sk.parents[keep]
+    joined = link[keep] & (par >= 0)
+    joined[joined] = keep[par[joined]]
+    parents = np.where(joined, new_index[np.maximum(par, 0)], -1)
     skeleton = Skeleton(sk.positions[keep], sk.radii[keep], parents, sk.order[keep])
     kept_leaves = [leaf for leaf in plant.leaves if 0 <= leaf.node < len(sk) and keep[leaf.node]]
     kept_ids = np.array([leaf.id for leaf in kept_leaves], np.int64)
@@ -290,6 +319,11 @@ def build_rung(name: str, plant: Plant, species: str, seed: int) -> Plant:
     return RUNGS[name].build(plant, species, rng(int(seed), "ladder", name))
 
 
+OBSERVED_RUNG = "observed"
+"""The rung cut to the wood the capture observed (:func:`cut_to_observed`): it reads the capture's
+``views/observed_wood.npz``, so it is built by :class:`LadderMethod` rather than from :data:`RUNGS`."""
+
+
 class LadderMethod:
     """``ladder:NAME``: writes the rung NAME of the case's ground truth (an oracle: it reads ``plant/``)."""
 
@@ -299,8 +333,8 @@ class LadderMethod:
     def __init__(self, rung: str) -> None:
         from plantbench.registry import did_you_mean
 
-        if rung not in RUNGS:
-            raise InputError(did_you_mean("calibration rung", rung, list(RUNGS)))
+        if rung not in RUNGS and rung != OBSERVED_RUNG:
+            raise InputError(did_you_mean("calibration rung", rung, [*RUNGS, OBSERVED_RUNG]))
         self.rung = rung
         self.name = PREFIX + rung
 
@@ -311,7 +345,12 @@ class LadderMethod:
         if options:
             raise InputError(f"{self.name}: takes no options, got {', '.join(sorted(options))}")
         plant, meta = read_plant(capture_dir)
-        out = build_rung(self.rung, plant, species or meta.species, seed)
+        if self.rung == OBSERVED_RUNG:
+            from plantbench.capture.observed import OBSERVED_FILE, read_observed
+
+            out = cut_to_observed(plant, read_observed(Path(capture_dir) / "views" / OBSERVED_FILE, plant.skeleton))
+        else:
+            out = build_rung(self.rung, plant, species or meta.species, seed)
         write_reconstruction(out_dir, out.skeleton, mesh=TriMesh.concatenate([out.branch_mesh, out.leaf_mesh]),
                              leaves=out.leaves)
 

@@ -128,6 +128,20 @@ def _observed_wood(case: Path, plant, observed_from: str | None) -> tuple[np.nda
     return None, f"no {' or '.join(f'{p}/{OBSERVED_FILE}' for p in order)} in the capture (made before issue 63?)"
 
 
+def _breast_height_observed(skeleton, share: np.ndarray, breast_height: float) -> float | None:
+    """1 when the capture observed at least half the bark of the ground-truth stem's edge at breast height (above
+    its lowest node), else 0; None when the stem does not reach it. A DBH is checked only where this is 1."""
+    from plantbench.skeletons import stem_edge_at_height
+
+    if len(skeleton) == 0:
+        return None
+    edge = stem_edge_at_height(skeleton, float(skeleton.positions[:, 2].min()) + breast_height)
+    if edge is None:
+        return None
+    index = int(np.searchsorted(np.flatnonzero(skeleton.parents >= 0), edge[1]))  # edges are ordered by child
+    return 1.0 if share[index] >= 0.5 else 0.0
+
+
 def _skeleton_metrics(values: dict, reasons: dict, plant, skeleton, samples, options: EvaluateOptions,
                       no_plant: str, gt_observed: tuple[np.ndarray | None, str] = (None, "")) -> None:
     """The ``skeleton.*`` metrics: the reconstruction's own traits (height, branches, lengths, DBH, crown area) with
@@ -166,6 +180,9 @@ def _skeleton_metrics(values: dict, reasons: dict, plant, skeleton, samples, opt
         w = gt_samples.weights(True)[:gt_samples.edge_samples]
         _set(values, reasons, "capture", {"observed_wood_share": float((w * share[gt_samples.edge]).sum() / w.sum())
                                           if w.sum() > 0 else None}, "the ground truth has no wood")
+        _set(values, reasons, "capture", {"breast_height_observed": _breast_height_observed(plant.skeleton, share,
+                                                                                            options.breast_height)},
+             "the ground-truth stem does not reach breast height")
     else:
         _set(values, reasons, "capture", None, why)
     prf = skeleton_prf(gt_samples, samples, step=options.skeleton_step,

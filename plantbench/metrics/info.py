@@ -132,6 +132,9 @@ for _f in HEIGHT_FRACTIONS:
 _add("capture.observed_wood_share", "", None,
      "volume-weighted share of the ground-truth wood the method's capture observed (views: a wood pixel of agreeing "
      "exact depth in >= 2 views; scans: a wood return within 2 x the median spacing); the same for every method")
+_add("capture.breast_height_observed", "", None,
+     "1 when the method's capture observed at least half the bark of the ground-truth stem at breast height (1.3 m "
+     "above its base), else 0: a DBH is checked against the truth only where the capture showed the stem")
 for _k, _what in (("precision", "matched / reconstructed branches"), ("recall", "matched / true branches"),
                   ("f1", "2 matched / (true + reconstructed branches)")):
     _add(f"skeleton.branch_{_k}@{tau_label(STRUCTURE_FRACTION)}", "", True,

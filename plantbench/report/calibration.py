@@ -28,12 +28,17 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["LADDER", "calibration_suite", "run_calibration", "verdicts", "ladder_means", "calibration_markdown",
-           "ladder_figure", "write_calibration", "ALLOWED_FAILURES", "LADDER_FILE"]
+           "ladder_figure", "write_calibration", "ALLOWED_FAILURES", "LADDER_FILE", "observation_split"]
 
 LADDER = ("gt", "orders<=3", "orders<=2", "orders<=1", "jitter-0.25%", "jitter-0.5%", "jitter-1%", "jitter-2%",
           "scale-1.05", "scale-1.1", "scale-1.25", "leaves-10%", "leaves-25%", "leaves-50%", "twigs+25%",
-          "twigs+100%", "twigs+400%", "tangle-20%", "prior-a", "prior-b", "other-species")
+          "twigs+100%", "twigs+400%", "tangle-20%", "prior-a", "prior-b", "other-species", "observed")
 """Rung names in the order of the tables."""
+OBSERVED = "observed"
+"""The rung cut to the wood the capture observed (:func:`plantbench.methods.ladder.cut_to_observed`)."""
+OBSERVATION_CHECK = {"skeleton.vf1_observed@1%": (">=", 0.95), "skeleton.vrecall_hidden@1%": ("<=", 0.05)}
+"""What the observed rung must score on each plant (observation about 1, inference about 0) for the observation
+and inference metrics to mean what they say."""
 JITTER = ("gt", "jitter-0.25%", "jitter-0.5%", "jitter-1%", "jitter-2%")
 PRUNING = ("gt", "orders<=3", "orders<=2", "orders<=1")
 TWIGS = ("gt", "twigs+25%", "twigs+100%", "twigs+400%")
@@ -193,6 +198,43 @@ def _missed_lines(rows, checks, n: int, means, words: str) -> list[str]:
         out.append(f"- `{d['metric']}`: {missed} plants (means: {said}).")
     return out
 
+def observation_split(table):
+    """Per plant, the observed rung's observation and inference scores and whether they pass
+    :data:`OBSERVATION_CHECK` (a plant without hidden wood, inference None, passes that half). Returns a DataFrame:
+    case, one column per metric, passed."""
+    import pandas as pd
+
+    piv = _pivot(table)
+    rows = []
+    for case in sorted(piv.index.get_level_values(1).unique()):
+        row, ok = {"case": case}, True
+        for metric, (op, bound) in OBSERVATION_CHECK.items():
+            v = piv[OBSERVED].get((metric, case), float("nan")) if OBSERVED in piv.columns else float("nan")
+            row[metric] = v
+            if math.isfinite(v):
+                ok &= v >= bound if op == ">=" else v <= bound
+            elif metric == "skeleton.vf1_observed@1%":
+                ok = False
+        rows.append({**row, "passed": ok})
+    return pd.DataFrame(rows)
+
+
+def _observation_lines(table) -> list[str]:
+    split = observation_split(table)
+    if split.empty or split[list(OBSERVATION_CHECK)].isna().all().all():
+        return []
+    lines = ["", "## Observation and inference", "",
+             "The `observed` rung is the ground truth cut to the wood its capture's views observed "
+             "(`plantbench.capture.observed`): it must score " + ", ".join(
+                 f"`{m}` {op} {b:g}" for m, (op, b) in OBSERVATION_CHECK.items())
+             + f" on every plant: {int(split['passed'].sum())} of {len(split)} do.", "",
+             "| plant | " + " | ".join(OBSERVATION_CHECK) + " | passed |", "|---" * (len(OBSERVATION_CHECK) + 2) + "|"]
+    for d in split.to_dict("records"):
+        lines.append(f"| {d['case']} | " + " | ".join(_fmt(d[m]) for m in OBSERVATION_CHECK)
+                     + f" | {'yes' if d['passed'] else 'no'} |")
+    return lines
+
+
 def calibration_markdown(table, verdict, *, header: str = "", headline: tuple[str, ...] = (),
                          structure: tuple[str, ...] = ()) -> str:
     """The README of reports/calibration: the verdict table (every metric), the ladder's means for the key metrics.
@@ -244,6 +286,7 @@ def calibration_markdown(table, verdict, *, header: str = "", headline: tuple[st
         lines += ["", "## Fidelity metrics that do not see structure", ""]
         lines += _missed_lines(blind, STRUCTURE_CHECKS, n, means, "gt {gt}, twigs +25 / +100 / +400 % {twigs+25%} / "
                                "{twigs+100%} / {twigs+400%}, tangle {" + TANGLE + "}")
+    lines += _observation_lines(table)
     lines += ["", "## Verdict per metric", "",
               "Counts are plants passing each check (of " + str(n) + "); *all*: every volume check, *all+s*: every "
               "check.", "",

@@ -161,3 +161,17 @@ def test_truth_cut_to_its_observed_wood_scores_observation_1_inference_0():
 
     assert got["vrecall_hidden@1%"] == pytest.approx(cone(0.26) / cone(0.5), abs=0.01)  # half, and tau beyond it
     assert skeleton_prf(gt, half, height=1.0, gt_observed=np.ones(4))["vrecall_hidden@1%"] is None
+
+
+def test_breast_height_observed_reads_the_stem_edge_at_1_3_m():
+    from plantbench.metrics.evaluate import _breast_height_observed
+
+    n = 7  # a 3 m stem, nodes every 0.5 m: the edge 1.0-1.5 m (the 3rd) crosses breast height
+    pos = np.stack([np.zeros(n), np.zeros(n), np.linspace(0.0, 3.0, n)], 1)
+    stem = Skeleton(pos, np.full(n, 0.1), np.arange(-1, n - 1), np.zeros(n, np.int64))
+    share = np.ones(n - 1)
+    assert _breast_height_observed(stem, share, 1.3) == 1.0
+    share[2] = 0.4
+    assert _breast_height_observed(stem, share, 1.3) == 0.0
+    assert _breast_height_observed(stem, share, 1.0) == 1.0  # 1.0 m lies on the 2nd edge's end (the first to cross)
+    assert _breast_height_observed(stem, share, 3.5) is None

@@ -14,7 +14,18 @@ from plantbench.hints import load_hint, write_hint
 from plantbench.io.plantio import read_reconstruction
 from plantbench.io.ply import write_points
 from plantbench.methods.inputs import is_oracle, reads_ground_truth
-from plantbench.methods.ladder import RUNGS, add_twigs, build_rung, jitter, move_leaves, other_species, prune, tangle
+from plantbench.methods.ladder import (
+    OBSERVED_RUNG,
+    RUNGS,
+    add_twigs,
+    build_rung,
+    cut_to_observed,
+    jitter,
+    move_leaves,
+    other_species,
+    prune,
+    tangle,
+)
 from plantbench.methods.prior import SpeciesPrior, cloud_height, grow_prior
 from plantbench.plant import TriMesh
 from plantbench.report.calibration import LADDER, STRUCTURE_CHECKS, VOLUME_CHECKS, plant_checks, verdicts
@@ -201,7 +212,7 @@ def test_rungs_deterministic_per_seed(laurel):
     c = build_rung("jitter-0.5%", laurel, "laurel", 8)
     assert not np.array_equal(c.skeleton.positions, build_rung("jitter-0.5%", laurel, "laurel", 7).skeleton.positions)
     assert other_species("laurel") != "laurel"
-    assert set(LADDER) == set(RUNGS)
+    assert set(LADDER) == set(RUNGS) | {OBSERVED_RUNG}
     with pytest.raises(InputError, match="did you mean"):
         build_rung("jiter-0.5%", laurel, "laurel", 0)
 
@@ -288,3 +299,31 @@ def test_calibration_files_and_the_reports_note(tmp_path):
     note = calibration_note(tmp_path)
     assert "skeleton.branch_f1@1%" in note and "0.49 and 0.18 on it, 0.97 and 0.93 on vF1" in note
     assert "0.61, vF1 0.96; the prior 0.04" in note
+
+
+def test_cut_to_observed_keeps_the_observed_edges_and_splits_at_hidden_ones(laurel):
+    """Hidden edges go, their kept ends start new stems; the cut scores observation 1 and inference about 0 against
+    the truth (the calibration rung), and no hidden edge survives between two kept nodes."""
+    from plantbench.metrics.skeleton import skeleton_prf
+
+    sk = laurel.skeleton
+    edges = sk.edges
+    share = (seeded(3, "test", "observed").random(len(edges)) < 0.6).astype(float)
+    cut = cut_to_observed(laurel, share)
+    kept_pairs = {tuple(p) for p in np.round(cut.skeleton.positions[cut.skeleton.edges], 12).reshape(-1, 6).tolist()}
+    want = {tuple(p) for p in np.round(sk.positions[edges[share >= 0.5]], 12).reshape(-1, 6).tolist()}
+    assert kept_pairs == want  # exactly the observed edges
+    assert len(cut.leaves) <= len(laurel.leaves) and len(cut.leaves) > 0
+    scores = skeleton_prf(sk, cut.skeleton, height=laurel.height, gt_observed=share)
+    assert scores["vf1_observed@1%"] > 0.99 and scores["vrecall_hidden@1%"] < scores["vrecall@1%"]
+    with pytest.raises(InputError, match="shares"):
+        cut_to_observed(laurel, share[:-1])
+
+
+def test_observation_split_reads_the_observed_rung():
+    from plantbench.report.calibration import observation_split
+
+    t = pd.concat([_ladder_table({"p0": {"observed": 0.99}, "p1": {"observed": 0.9}}, "skeleton.vf1_observed@1%"),
+                   _ladder_table({"p0": {"observed": 0.01}, "p1": {"observed": 0.0}}, "skeleton.vrecall_hidden@1%")])
+    split = observation_split(t).set_index("case")
+    assert bool(split.loc["p0", "passed"]) and not bool(split.loc["p1", "passed"])
