@@ -31,9 +31,10 @@ STUDY_METRICS = ("stava.S_T", "mesh_to_surface.D_cm", "reprojection.error", "ske
 
 FORMATS = ("md", "latex", "csv", "html")
 
-PAIRED_METRICS = (*HEADLINE, "stava.S_T", "mesh_to_surface.D_cm", "reprojection.iou", "leaves.accuracy")
-"""Metrics of the paired-comparison table: the headline, then the paper's S_T and D and the older image and leaf
-columns (every metric's values are in results.csv)."""
+PAIRED_METRICS = (*HEADLINE, "skeleton.vf1_observed@1%", "skeleton.vrecall_hidden@1%", "stava.S_T",
+                  "mesh_to_surface.D_cm", "reprojection.iou", "leaves.accuracy")
+"""Metrics of the paired-comparison table: the headline, observation and inference (:mod:`.observation`), then the
+paper's S_T and D and the older image and leaf columns (every metric's values are in results.csv)."""
 
 # The columns of Guo et al. 2018, Table 3, then ours. D and sigma are the paper's vertex -> nearest-ground-truth-point
 # distance with the ground truth a perfect scan: the exact distance to the GT surface (mesh_to_surface). The simulated
@@ -140,11 +141,16 @@ def headline_table(table, metrics: tuple[str, ...]):
     return pd.DataFrame(rows, columns=["metric", *methods])
 
 
+_WITHIN = "seeds within species [95 % CI]"
+"""The column of the within-species interval (:func:`plantbench.report.tables.paired_differences`)."""
+
+
 def comparison_table(table, metrics: tuple[str, ...], reference: str = "prior", *, by: str | None = None):
-    """Paired differences over cases (:func:`plantbench.report.tables.paired_differences`): every method against
-    ``reference`` (the no-data prior) and every pair of the other non-oracle methods, with the minimum detectable
-    difference (the interval's half-width for this n); with ``by`` (e.g. 'family'), within each group of cases.
-    Returns (DataFrame of strings, raw differences)."""
+    """Paired differences over cases (:func:`plantbench.report.tables.paired_differences`, a failed cell of a
+    higher-is-better metric counted 0): every method against ``reference`` (the no-data prior) and every pair of the
+    other non-oracle methods, with the minimum detectable difference (the verdict interval's half-width for this n);
+    with ``by`` (e.g. 'family'), within each group of cases. A suite with two or more seeds of every species gets the
+    within-species interval too, and its verdict is read from it. Returns (DataFrame of strings, raw differences)."""
     import pandas as pd
 
     from plantbench.report.tables import paired_differences
@@ -157,7 +163,7 @@ def comparison_table(table, metrics: tuple[str, ...], reference: str = "prior", 
     groups = [(None, table)] if by is None else list(table.groupby(by, sort=True))
     raws, rows = [], []
     for group, sub in groups:
-        raw = paired_differences(sub, metrics, pairs)
+        raw = paired_differences(sub, metrics, pairs, failed_as_zero=True)
         if by is not None:
             raw.insert(0, by, group)
         raws.append(raw)
@@ -168,10 +174,13 @@ def comparison_table(table, metrics: tuple[str, ...], reference: str = "prior", 
             row.update({"metric": _unit_label(r["metric"]), "comparison": f"{r['a']} - {r['b']}", "cases": r["n"],
                         "difference [95 % CI]": f"{format_value(r['diff'], unit)} [{format_value(r['lo'], unit)}, "
                                                 f"{format_value(r['hi'], unit)}]",
+                        _WITHIN: f"[{format_value(r['lo_species'], unit)}, {format_value(r['hi_species'], unit)}]"
+                        if np.isfinite(r["lo_species"]) else "-",
                         "MDD": format_value(r["mdd"], unit), "verdict": r["verdict"]})
             rows.append(row)
-    cols = ([by] if by is not None else []) + ["metric", "comparison", "cases", "difference [95 % CI]", "MDD",
-                                               "verdict"]
+    within = any(np.isfinite(r) for raw in raws for r in raw["lo_species"])
+    cols = ([by] if by is not None else []) + ["metric", "comparison", "cases", "difference [95 % CI]"] \
+        + ([_WITHIN] if within else []) + ["MDD", "verdict"]
     raw = pd.concat(raws, ignore_index=True) if raws else pd.DataFrame()
     return pd.DataFrame(rows, columns=cols), raw
 
@@ -250,11 +259,17 @@ def _tables(table, sweep: str | None = None) -> list[tuple[str, str, object]]:
     compared = tuple(m for m in PAIRED_METRICS if m in present)
     comp, _ = comparison_table(table, compared)
     if not comp.empty:
-        out.append(("paired", "Paired differences over cases (mean and 95 % bootstrap CI): each method against the "
-                              "no-data prior, and each pair of methods. 'beats' only when the interval excludes 0; "
-                              "MDD, the minimum detectable difference, is the interval's half-width: a difference "
-                              "smaller than it cannot be told from 0 with this suite's cases",
-                    comp))
+        out.append(("paired", "Paired differences over cases (mean and 95 % bootstrap CI; a failed cell of a "
+                              "higher-is-better metric counts 0): each method against the no-data prior, and each "
+                              "pair of methods. With two or more seeds of every species, the interval with the seeds "
+                              "resampled within species beside it (the species are the suite's design; the verdict "
+                              "is read from it, the across-plant interval is the one for new species). 'beats' only "
+                              "when the interval excludes 0; MDD, the minimum detectable difference, is the "
+                              "interval's half-width: a difference smaller than it cannot be told from 0 with this "
+                              "suite's cases", comp))
+    from plantbench.report.observation import observation_tables
+
+    out += observation_tables(table)
     if "family" in table.columns and table["family"].nunique() > 1:
         fam, _ = comparison_table(table, compared, by="family")
         if not fam.empty:
@@ -491,7 +506,10 @@ def write_report(run_dir: str | os.PathLike, formats: tuple[str, ...] = FORMATS,
 
         tables += real_tables(run_dir, table)
         figures += real_figures(run_dir, table, out / "figures")
-    for extra in (distance_figure(run_dir, out / "figures" / "distances.png"),
+    from plantbench.report.observation import observed_figure
+
+    for extra in (observed_figure(run_dir, out / "figures" / "observed.png"),
+                  distance_figure(run_dir, out / "figures" / "distances.png"),
                   leaf_figure(run_dir, out / "figures" / "leaves.png"),
                   timeline_figure(run_dir, out / "figures" / "timeline.png")):
         if extra is not None:

@@ -10,7 +10,7 @@ import numpy as np
 from plantbench.metrics.info import HEADLINE, short_label
 from plantbench.metrics.info import KEY_METRICS as _KEY
 
-__all__ = ["bootstrap_ci", "aggregate", "KEY_METRICS", "metric_info", "paired_differences",
+__all__ = ["bootstrap_ci", "stratified_bootstrap_ci", "aggregate", "KEY_METRICS", "metric_info", "paired_differences",
            "format_value", "HEADLINE", "compare_runs", "summary_lines"]
 
 KEY_METRICS = (*_KEY, "runtime_s")
@@ -73,22 +73,73 @@ def format_value(v: float, unit: str = "") -> str:
     return f"{v:.3f}"
 
 
+def stratified_bootstrap_ci(values: np.ndarray, strata: np.ndarray, *, n_boot: int = 2000, level: float = 0.95,
+                            seed: int = 0) -> tuple[float, float]:
+    """Percentile bootstrap interval of the mean of ``values`` (n,) resampled within each stratum (``strata``, (n,)
+    labels: the species of a suite whose species are its fixed design, each stratum keeping its size); (nan, nan)
+    when a stratum holds fewer than 2 values (resampling one value gives no interval)."""
+    v = np.asarray(values, float)
+    labels = np.asarray(strata)
+    keep = np.isfinite(v)
+    v, labels = v[keep], labels[keep]
+    groups = [v[labels == s] for s in sorted(set(labels.tolist()))]
+    if not groups or min(len(g) for g in groups) < 2:
+        return float("nan"), float("nan")
+    rng = np.random.Generator(np.random.PCG64(seed))
+    sums = np.zeros(n_boot)
+    for g in groups:
+        sums += g[rng.integers(0, g.size, (n_boot, g.size))].sum(axis=1)
+    a = (1 - level) / 2
+    lo, hi = np.quantile(sums / v.size, [a, 1 - a])
+    return float(lo), float(hi)
+
+
+def _verdict(a: str, b: str, lo: float, hi: float, higher: bool | None, n: int) -> str:
+    """'a beats b' when the interval excludes 0 on the metric's good side, 'a below b' on its bad side, else
+    'within noise'."""
+    if n > 1 and higher is not None and np.isfinite(lo) and (lo > 0 or hi < 0):
+        return f"{a} beats {b}" if (lo > 0) == bool(higher) else f"{a} below {b}"
+    return "within noise"
+
+
+def _paired_values(table, metrics: tuple[str, ...], failed_as_zero: bool):
+    """(metric, case) x method values and the species of each case; with ``failed_as_zero``, a failed cell of a
+    higher-is-better metric counts 0 (a method that returns nothing has shown nothing)."""
+    sub = table[table["metric"].isin(metrics)].copy()
+    ok = sub["status"] == "ok"
+    if failed_as_zero:
+        higher = sub["metric"].map(lambda m: bool(getattr(metric_info(m), "higher_is_better", None)))
+        sub.loc[~ok & higher, "value"] = 0.0
+        ok |= higher
+    sub = sub[ok]
+    wide = sub.pivot_table(index=["metric", "case"], columns="method", values="value", aggfunc="first")
+    species = sub.drop_duplicates("case").set_index("case")["species"] if "species" in sub.columns else None
+    return wide, species
+
+
 def paired_differences(table, metrics: tuple[str, ...], pairs: list[tuple[str, str]], *, n_boot: int = 5000,
-                       level: float = 0.95, seed: int = 0):
+                       level: float = 0.95, seed: int = 0, failed_as_zero: bool = False):
     """Method a minus method b per metric, paired over the cases both scored: mean difference, percentile bootstrap
     interval of the mean (cases resampled), and a verdict in the metric's direction: 'a beats b' only when the
     interval excludes 0 on the good side, 'a below b' when it excludes 0 on the bad side, else 'within noise'. A pair
-    with no case scored by both is left out.
+    with no case scored by both is left out. With ``failed_as_zero`` a failed cell of a higher-is-better metric
+    counts 0 instead of leaving the pair.
 
-    ``mdd``, the minimum detectable difference, is the interval's half-width (hi - lo) / 2: the smallest mean
-    difference this suite's n cases and their spread let the paired bootstrap tell from 0.
+    A suite with two or more cases of every species (seeds of a fixed set of species, multiview-30) also gets the
+    interval with the seeds resampled within each species (``lo_species``, ``hi_species``): the species are the
+    suite's design, and that interval is the one for claims about them; the verdict is then read from it. The
+    across-plant interval (``lo``, ``hi``) stays beside it, the interval for claims about new species. With one case
+    of a species the within-species columns are NaN and the verdict is the across-plant one.
 
-    Returns a DataFrame: metric, a, b, n, diff, lo, hi, mdd, verdict.
+    ``mdd``, the minimum detectable difference, is the verdict's interval's half-width: the smallest mean difference
+    this suite's n cases and their spread let the paired bootstrap tell from 0.
+
+    Returns a DataFrame: metric, a, b, n, diff, lo, hi, lo_species, hi_species, mdd, verdict.
     """
     import pandas as pd
 
-    ok = table[(table["status"] == "ok") & table["metric"].isin(metrics)]
-    wide = ok.pivot_table(index=["metric", "case"], columns="method", values="value", aggfunc="first")
+    wide, species = _paired_values(table, metrics, failed_as_zero)
+    cols = ["metric", "a", "b", "n", "diff", "lo", "hi", "lo_species", "hi_species", "mdd", "verdict"]
     rows = []
     for metric in metrics:
         if metric not in wide.index.get_level_values(0):
@@ -99,20 +150,20 @@ def paired_differences(table, metrics: tuple[str, ...], pairs: list[tuple[str, s
         for a, b in pairs:
             if a not in w.columns or b not in w.columns:
                 continue
-            d = (w[a] - w[b]).to_numpy(float)
-            d = d[np.isfinite(d)]
+            diff = w[a] - w[b]
+            diff = diff[np.isfinite(diff.to_numpy(float))]
+            d = diff.to_numpy(float)
             if d.size == 0:  # one of the two does not score this metric (e.g. a skeleton-only method's surface)
                 continue
             lo, hi = bootstrap_ci(d, n_boot=n_boot, level=level, seed=seed)
-            verdict = "within noise"
-            if d.size > 1 and higher is not None and np.isfinite(lo):
-                if lo > 0 or hi < 0:
-                    good = (lo > 0) == bool(higher)
-                    verdict = f"{a} beats {b}" if good else f"{a} below {b}"
-            rows.append({"metric": metric, "a": a, "b": b, "n": int(d.size),
-                         "diff": float(d.mean()) if d.size else float("nan"), "lo": lo, "hi": hi,
-                         "mdd": (hi - lo) / 2 if d.size > 1 else float("nan"), "verdict": verdict})
-    return pd.DataFrame(rows, columns=["metric", "a", "b", "n", "diff", "lo", "hi", "mdd", "verdict"])
+            ls, hs = (stratified_bootstrap_ci(d, species.reindex(diff.index).to_numpy(), n_boot=n_boot, level=level,
+                                              seed=seed) if species is not None else (float("nan"),) * 2)
+            vlo, vhi = (ls, hs) if np.isfinite(ls) else (lo, hi)
+            rows.append({"metric": metric, "a": a, "b": b, "n": int(d.size), "diff": float(d.mean()), "lo": lo,
+                         "hi": hi, "lo_species": ls, "hi_species": hs,
+                         "mdd": (vhi - vlo) / 2 if d.size > 1 else float("nan"),
+                         "verdict": _verdict(a, b, vlo, vhi, higher, d.size)})
+    return pd.DataFrame(rows, columns=cols)
 
 
 def compare_runs(table_a, table_b, *, label_a: str = "a", label_b: str = "b", metrics: tuple[str, ...] = KEY_METRICS,

@@ -32,12 +32,34 @@ def test_paired_difference_against_a_hand_bootstrap():
     assert row["diff"] == pytest.approx(diff.mean())
     assert (row["lo"], row["hi"]) == pytest.approx(tuple(np.quantile(means, [0.025, 0.975])))
     assert row["verdict"] == "a beats prior" and row["n"] == 10
-    assert row["mdd"] == pytest.approx((row["hi"] - row["lo"]) / 2)  # the minimum detectable difference
+    # two species of five seeds each: the verdict's interval resamples seeds within species (a hand loop), the
+    # across-plant one stays beside it; the minimum detectable difference is the verdict interval's half-width
+    g = np.random.Generator(np.random.PCG64(3))
+    sp = np.arange(10) % 2
+    sums = np.zeros(4000)
+    for k in (0, 1):
+        grp = diff[sp == k]
+        sums += grp[g.integers(0, 5, (4000, 5))].sum(1)
+    assert (row["lo_species"], row["hi_species"]) == pytest.approx(tuple(np.quantile(sums / 10, [0.025, 0.975])))
+    assert row["mdd"] == pytest.approx((row["hi_species"] - row["lo_species"]) / 2)
     # unpaired, the intervals of the two means overlap: the pairing is what makes it a win
     assert np.quantile(base, 0.9) > np.quantile(a, 0.1)
     assert d.set_index("metric").loc["mesh_to_surface.D_cm", "verdict"] == "within noise"
     worse = paired_differences(t, ("skeleton.vf1@1%",), [("prior", "a")])
     assert worse["verdict"].iloc[0] == "prior below a"
+
+
+def test_one_seed_a_species_keeps_the_across_plant_interval_and_failures_count_zero():
+    rows = [{"case": f"c{i}", "species": f"s{i}", "family": "f", "method": m, "metric": "skeleton.vf1@1%",
+             "value": v, "status": "ok"} for m, vs in (("a", [0.5, 0.6, 0.7, 0.8]), ("b", [0.4, 0.5, 0.6, 0.7]))
+            for i, v in enumerate(vs)]
+    t = pd.DataFrame(rows)
+    d = paired_differences(t, ("skeleton.vf1@1%",), [("a", "b")]).iloc[0]
+    assert np.isnan(d["lo_species"]) and d["mdd"] == pytest.approx((d["hi"] - d["lo"]) / 2)
+    t.loc[(t["method"] == "a") & (t["case"] == "c3"), ["value", "status"]] = [np.nan, "failed"]
+    assert paired_differences(t, ("skeleton.vf1@1%",), [("a", "b")]).iloc[0]["n"] == 3  # the failure leaves
+    zero = paired_differences(t, ("skeleton.vf1@1%",), [("a", "b")], failed_as_zero=True).iloc[0]
+    assert zero["n"] == 4 and zero["diff"] == pytest.approx((0.1 * 3 - 0.7) / 4)
 
 
 def test_lower_is_better_and_missing_cases():

@@ -1,0 +1,171 @@
+"""Observation and inference in a report (issue 63): how much of each plant's wood its capture showed, how much of
+the hidden wood each method recovered, and a figure of the ground-truth skeleton coloured observed / hidden over a
+view of each plant.
+
+The numbers are the metrics' (:mod:`plantbench.capture.observed`, ``capture.observed_wood_share``,
+``skeleton.vf1_observed@1%``, ``skeleton.vrecall_hidden@1%``); this module only tabulates and draws them.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["OBSERVED", "OBSERVATION", "INFERENCE", "observed_per_plant", "observation_tables", "oracle_ratio",
+           "observed_figure"]
+
+OBSERVED = "capture.observed_wood_share"
+OBSERVATION = "skeleton.vf1_observed@1%"
+INFERENCE = "skeleton.vrecall_hidden@1%"
+BREAST = "capture.breast_height_observed"
+WELL_OBSERVED = 0.6
+"""Plants whose capture observed at least this share of the wood: where a method's observation is held to its
+oracle (issue 63's acceptance)."""
+
+
+def observed_per_plant(table):
+    """One row per case: species, family, the observed share of its wood and whether its stem's breast height was
+    observed (both the same for every method reading the same capture; the median over them). Empty when the run
+    has no observed-wood metrics."""
+    import pandas as pd
+
+    ok = table[(table["status"] == "ok") & table["metric"].isin([OBSERVED, BREAST])]
+    ok = ok[np.isfinite(ok["value"].to_numpy(float))]
+    if ok.empty:
+        return pd.DataFrame(columns=["case", "species", "family", OBSERVED, BREAST])
+    keys = [c for c in ("case", "species", "family") if c in ok.columns]
+    wide = ok.pivot_table(index=keys, columns="metric", values="value", aggfunc="median").reset_index()
+    for m in (OBSERVED, BREAST):
+        if m not in wide.columns:
+            wide[m] = np.nan
+    return wide.sort_values(OBSERVED).reset_index(drop=True)
+
+
+def oracle_ratio(table, oracle_table=None, *, metric: str = OBSERVATION, threshold: float = WELL_OBSERVED):
+    """Each method's ``metric`` on its cloud over the same on the oracle cloud (ratio of the means over the plants
+    both scored, a failed cell counted 0), over the plants whose observed share is at least ``threshold`` and over
+    the others. The oracle cells are ``METHOD@oracle`` rows of ``table``, or the same method's rows of
+    ``oracle_table`` (a run of the suite whose mvs stage is the oracle). Returns a DataFrame: method, group, plants,
+    mean, oracle_mean, ratio."""
+    import pandas as pd
+
+    def values(t):
+        sub = t[t["metric"] == metric]
+        v = sub["value"].where(sub["status"] == "ok", 0.0).fillna(0.0)
+        return sub.assign(value=v).pivot_table(index="case", columns="method", values="value", aggfunc="first")
+
+    mine = values(table)
+    other = values(oracle_table) if oracle_table is not None else None
+    share = observed_per_plant(table).set_index("case")[OBSERVED]
+    rows = []
+    for method in mine.columns:
+        base = method.split(" ")[0]
+        if "@" in base or base in ("gt", "prior"):
+            continue
+        if other is not None and method in other.columns:
+            ref = other[method]
+        elif f"{base}@oracle (oracle)" in mine.columns:
+            ref = mine[f"{base}@oracle (oracle)"]
+        else:
+            continue
+        both = pd.concat([mine[method], ref], axis=1, keys=["m", "o"]).dropna()
+        both = both[both.index.isin(share.index)]
+        for group, sel in ((f">= {threshold:g}", share.reindex(both.index) >= threshold),
+                           (f"< {threshold:g}", share.reindex(both.index) < threshold)):
+            g = both[sel.to_numpy()]
+            if len(g):
+                rows.append({"method": method, "group": group, "plants": len(g), "mean": g["m"].mean(),
+                             "oracle_mean": g["o"].mean(),
+                             "ratio": g["m"].mean() / g["o"].mean() if g["o"].mean() > 0 else float("nan")})
+    return pd.DataFrame(rows, columns=["method", "group", "plants", "mean", "oracle_mean", "ratio"])
+
+
+def observation_tables(table) -> list[tuple[str, str, object]]:
+    """(slug, caption, DataFrame of strings) of the report's observation tables: the observed share per plant, the
+    observation and inference scores per family and method, and the oracle ratio on observation when the run has
+    oracle-cloud cells; [] for a run without observed-wood metrics."""
+    import pandas as pd
+
+    from plantbench.report.report import wide_table
+
+    plants = observed_per_plant(table)
+    if plants.empty:
+        return []
+    shown = plants.assign(**{OBSERVED: plants[OBSERVED].map(lambda v: f"{v:.2f}"),
+                             BREAST: plants[BREAST].map(lambda v: "-" if not np.isfinite(v) else
+                                                        ("yes" if v >= 0.5 else "no"))})
+    out = [("observed", "Wood the capture observed, per plant: the volume-weighted share of the ground-truth wood "
+                        "seen on a wood pixel of agreeing exact depth in >= 2 views (branches >= 1 px wide; a scan: "
+                        "within 2 x the median spacing of a wood return), and whether the stem's bark at breast "
+                        "height was observed (a DBH is checked only there)", shown)]
+    by = ("family", "method") if "family" in table.columns else ("method",)
+    out.append(("inference", f"Observation and inference per {by[0]} and method: {OBSERVATION} (precision against "
+                             f"the whole truth, recall over the observed wood) and {INFERENCE} (recall over the "
+                             "hidden wood: what the method inferred), mean [95 % bootstrap CI] over plants",
+                wide_table(table, by, (OBSERVATION, INFERENCE))))
+    ratio = oracle_ratio(table)
+    if not ratio.empty:
+        out.append(("oracle_ratio", f"{OBSERVATION} on the method's cloud over the same on the oracle cloud (ratio of "
+                                    "means, failed cells 0), on the plants whose capture observed >= "
+                                    f"{WELL_OBSERVED:g} of the wood and on the others",
+                    pd.DataFrame([{**r, "mean": f"{r['mean']:.3f}", "oracle_mean": f"{r['oracle_mean']:.3f}",
+                                   "ratio": f"{r['ratio']:.2f}"} for r in ratio.to_dict("records")])))
+    return out
+
+
+def observed_figure(run_dir: str | os.PathLike, path: str | os.PathLike, *, view: int = 0,
+                    max_cases: int = 30) -> Path | None:
+    """A panel per case (up to ``max_cases``): the ground-truth skeleton drawn over view ``view`` of its capture, each
+    edge coloured by the share of its bark the views observed (green observed, red hidden), its width the branch's
+    projected width. None when no capture of the run has ``views/observed_wood.npz``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+    from PIL import Image
+
+    from plantbench.cameras import read_cameras
+    from plantbench.capture.observed import OBSERVED_FILE, observed_share, read_observed
+    from plantbench.io.plantio import read_plant
+    from plantbench.report.report import _cells
+
+    cases = {}
+    for c in _cells(Path(run_dir)):
+        if (c["capture"] / "views" / OBSERVED_FILE).is_file() and c["case"] not in cases:
+            cases[c["case"]] = c["capture"]
+    if not cases:
+        return None
+    names = sorted(cases)[:max_cases]
+    cols = min(5, len(names))
+    rows = -(-len(names) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.0 * cols, 3.1 * rows), squeeze=False, layout="constrained")
+    for ax in axes.ravel():
+        ax.axis("off")
+    for ax, case in zip(axes.ravel(), names):
+        folder = cases[case]
+        plant, _ = read_plant(folder)
+        share = read_observed(folder / "views" / OBSERVED_FILE, plant.skeleton)
+        cams, images = read_cameras(folder / "views" / "cameras.json")
+        cam = cams[min(view, len(cams) - 1)]
+        img = np.asarray(Image.open(folder / "views" / "images" / images[min(view, len(cams) - 1)]))
+        e = plant.skeleton.edges
+        uv, z = cam.project(plant.skeleton.positions)
+        r = 0.5 * (plant.skeleton.radii[e[:, 0]] + plant.skeleton.radii[e[:, 1]])
+        points_per_px = 3.0 * 72 / cam.width  # the panel is about 3 inches wide
+        width = np.clip(2 * r * cam.K[0, 0] / np.maximum(z[e[:, 1]], 1e-6) * points_per_px, 0.15, 3.0)
+        ax.imshow(img, alpha=0.35)
+        order = np.argsort(share)[::-1]  # hidden (red) drawn last, over the observed
+        ax.add_collection(LineCollection(np.stack([uv[e[order, 0]], uv[e[order, 1]]], 1),
+                                         colors=plt.cm.RdYlGn(share[order]), linewidths=width[order]))
+        ax.set(xlim=(0, cam.width), ylim=(cam.height, 0),
+               title=f"{case}: {observed_share(plant.skeleton, share):.2f} observed")
+        ax.title.set_fontsize(8)
+    fig.suptitle("Ground-truth skeleton over a view: bark observed (green) / hidden (red) by the capture", fontsize=9)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

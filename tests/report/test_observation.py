@@ -1,0 +1,55 @@
+"""The report's observation tables against hand-made results."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from plantbench.report.observation import (
+    BREAST,
+    INFERENCE,
+    OBSERVATION,
+    OBSERVED,
+    observation_tables,
+    observed_per_plant,
+    oracle_ratio,
+)
+
+
+def _rows(case, method, values, status="ok"):
+    return [{"case": case, "species": case.split("-")[0], "family": "f", "method": method, "metric": m, "value": v,
+             "status": status} for m, v in values.items()]
+
+
+def _table():
+    rows = []
+    for case, share in (("a-1", 0.9), ("b-1", 0.7), ("c-1", 0.3)):
+        for method, obs in (("livny", {"a-1": 0.6, "b-1": 0.5, "c-1": 0.2}),
+                            ("livny@oracle (oracle)", {"a-1": 0.8, "b-1": 0.9, "c-1": 0.5})):
+            rows += _rows(case, method, {OBSERVED: share, BREAST: 1.0, OBSERVATION: obs[case], INFERENCE: 0.1})
+    return pd.DataFrame(rows)
+
+
+def test_observed_share_per_plant_lowest_first():
+    plants = observed_per_plant(_table())
+    assert list(plants["case"]) == ["c-1", "b-1", "a-1"] and plants[OBSERVED].tolist() == [0.3, 0.7, 0.9]
+
+
+def test_oracle_ratio_of_means_split_at_the_observed_share_with_failures_at_zero():
+    t = _table()
+    r = oracle_ratio(t).set_index("group")
+    assert r.loc[">= 0.6", "plants"] == 2 and r.loc[">= 0.6", "ratio"] == pytest.approx((0.6 + 0.5) / (0.8 + 0.9))
+    assert r.loc["< 0.6", "ratio"] == pytest.approx(0.2 / 0.5)
+    failed = (t["method"] == "livny") & (t["case"] == "a-1") & (t["metric"] == OBSERVATION)
+    t.loc[failed, ["value", "status"]] = [np.nan, "failed"]
+    assert oracle_ratio(t).set_index("group").loc[">= 0.6", "ratio"] == pytest.approx(0.5 / 1.7)
+    # a separate oracle run (its methods named as the run's own)
+    oracle = t[t["method"] == "livny@oracle (oracle)"].assign(method="livny")
+    mine = t[t["method"] == "livny"]
+    assert oracle_ratio(mine, oracle).set_index("group").loc["< 0.6", "ratio"] == pytest.approx(0.4)
+
+
+def test_observation_tables_only_with_the_metrics():
+    slugs = [s for s, _, _ in observation_tables(_table())]
+    assert slugs == ["observed", "inference", "oracle_ratio"]
+    none = _table()[~_table()["metric"].isin([OBSERVED, BREAST])]
+    assert observation_tables(none) == []
