@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["OBSERVED", "OBSERVATION", "INFERENCE", "observed_per_plant", "observation_tables", "oracle_ratio",
-           "observed_figure"]
+           "dbh_check", "observed_figure"]
 
 OBSERVED = "capture.observed_wood_share"
 OBSERVATION = "skeleton.vf1_observed@1%"
@@ -82,6 +82,37 @@ def oracle_ratio(table, oracle_table=None, *, metric: str = OBSERVATION, thresho
     return pd.DataFrame(rows, columns=["method", "group", "plants", "mean", "oracle_mean", "ratio"])
 
 
+def dbh_check(table, *, within: float = 0.10):
+    """Each method's DBH against the truth (the gt row's ``skeleton.dbh_cm``) on the plants whose capture observed
+    the stem at breast height: plants checked, within ``within`` of the truth, within 0.5-2x, and the plants skipped
+    because the stem was hidden there or is shorter than breast height (a failed cell counts as checked and not
+    within). Returns a DataFrame: method, checked, within, within_2x, median_rel_error, hidden, short."""
+    import pandas as pd
+
+    plants = observed_per_plant(table).set_index("case")
+    dbh = table[table["metric"] == "skeleton.dbh_cm"]
+    truth = dbh[dbh["method"].str.split(" ").str[0] == "gt"].set_index("case")["value"]
+    seen = plants.index[plants[BREAST] >= 0.5]
+    hidden = int((plants[BREAST] < 0.5).sum())
+    short = int(plants[BREAST].isna().sum())
+    rows = []
+    for method, grp in dbh.groupby("method", sort=True):
+        if method.split(" ")[0] == "gt":
+            continue
+        g = grp.set_index("case")
+        cases = [c for c in seen if c in g.index and np.isfinite(truth.get(c, np.nan))]
+        rel = np.array([abs(g.at[c, "value"] - truth[c]) / truth[c] if g.at[c, "status"] == "ok"
+                        and np.isfinite(g.at[c, "value"]) else np.inf for c in cases])
+        ratio = np.array([g.at[c, "value"] / truth[c] if g.at[c, "status"] == "ok" and np.isfinite(g.at[c, "value"])
+                          else np.nan for c in cases])
+        rows.append({"method": method, "checked": len(cases), "within": int((rel <= within).sum()),
+                     "within_2x": int(((ratio >= 0.5) & (ratio <= 2.0)).sum()),
+                     "median_rel_error": float(np.median(rel)) if len(rel) else float("nan"),
+                     "hidden": hidden, "short": short})
+    return pd.DataFrame(rows, columns=["method", "checked", "within", "within_2x", "median_rel_error", "hidden",
+                                       "short"])
+
+
 def observation_tables(table) -> list[tuple[str, str, object]]:
     """(slug, caption, DataFrame of strings) of the report's observation tables: the observed share per plant, the
     observation and inference scores per family and method, and the oracle ratio on observation when the run has
@@ -105,6 +136,12 @@ def observation_tables(table) -> list[tuple[str, str, object]]:
                              f"the whole truth, recall over the observed wood) and {INFERENCE} (recall over the "
                              "hidden wood: what the method inferred), mean [95 % bootstrap CI] over plants",
                 wide_table(table, by, (OBSERVATION, INFERENCE))))
+    dbh = dbh_check(table)
+    if len(dbh) and dbh["checked"].max() > 0:
+        out.append(("dbh", "DBH against the truth where the capture observed the stem at breast height: plants "
+                           "checked, within 10 %, within 0.5-2x, median relative error; plants skipped because the "
+                           "stem's bark at 1.3 m was hidden, or the stem is shorter",
+                    dbh.assign(median_rel_error=dbh["median_rel_error"].map(lambda v: f"{v:.2f}"))))
     ratio = oracle_ratio(table)
     if not ratio.empty:
         out.append(("oracle_ratio", f"{OBSERVATION} on the method's cloud over the same on the oracle cloud (ratio of "

@@ -53,3 +53,16 @@ def test_observation_tables_only_with_the_metrics():
     assert slugs == ["observed", "inference", "oracle_ratio"]
     none = _table()[~_table()["metric"].isin([OBSERVED, BREAST])]
     assert observation_tables(none) == []
+
+
+def test_dbh_checked_only_where_the_stem_was_observed():
+    from plantbench.report.observation import dbh_check
+
+    rows = []
+    for case, seen, gt, est in (("a-1", 1.0, 10.0, 10.5), ("b-1", 1.0, 20.0, 30.0), ("c-1", 0.0, 5.0, 20.0),
+                                ("d-1", np.nan, np.nan, np.nan)):
+        rows += _rows(case, "gt (oracle)", {OBSERVED: 0.5, BREAST: seen, "skeleton.dbh_cm": gt})
+        rows += _rows(case, "xu", {OBSERVED: 0.5, BREAST: seen, "skeleton.dbh_cm": est})
+    d = dbh_check(pd.DataFrame(rows)).set_index("method").loc["xu"]
+    assert (d["checked"], d["within"], d["within_2x"], d["hidden"], d["short"]) == (2, 1, 2, 1, 1)
+    assert d["median_rel_error"] == pytest.approx(np.median([0.05, 0.5]))
