@@ -113,13 +113,13 @@ def dbh_check(table, *, within: float = 0.10):
                                        "short"])
 
 
-def observation_tables(table) -> list[tuple[str, str, object]]:
+def observation_tables(table, wide_table) -> list[tuple[str, str, object]]:
     """(slug, caption, DataFrame of strings) of the report's observation tables: the observed share per plant, the
-    observation and inference scores per family and method, and the oracle ratio on observation when the run has
-    oracle-cloud cells; [] for a run without observed-wood metrics."""
+    observation and inference scores per family and method (``wide_table(table, by, metrics)``: the report's
+    mean [CI] table, :func:`plantbench.report.report.wide_table`), the DBH check where the stem was observed, and
+    the oracle ratio on observation when the run has oracle-cloud cells; [] for a run without observed-wood
+    metrics."""
     import pandas as pd
-
-    from plantbench.report.report import wide_table
 
     plants = observed_per_plant(table)
     if plants.empty:
@@ -152,11 +152,12 @@ def observation_tables(table) -> list[tuple[str, str, object]]:
     return out
 
 
-def observed_figure(run_dir: str | os.PathLike, path: str | os.PathLike, *, view: int = 0,
+def observed_figure(captures: dict[str, Path], path: str | os.PathLike, *, view: int = 0,
                     max_cases: int = 30) -> Path | None:
-    """A panel per case (up to ``max_cases``): the ground-truth skeleton drawn over view ``view`` of its capture, each
-    edge coloured by the share of its bark the views observed (green observed, red hidden), its width the branch's
-    projected width. None when no capture of the run has ``views/observed_wood.npz``."""
+    """A panel per case (``captures``: case -> its capture folder; up to ``max_cases``): the ground-truth skeleton
+    drawn over view ``view`` of its capture, each edge coloured by the share of its bark the views observed (green
+    observed, red hidden), its width the branch's projected width. None when no capture has
+    ``views/observed_wood.npz``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -167,12 +168,8 @@ def observed_figure(run_dir: str | os.PathLike, path: str | os.PathLike, *, view
     from plantbench.cameras import read_cameras
     from plantbench.capture.observed import OBSERVED_FILE, observed_share, read_observed
     from plantbench.io.plantio import read_plant
-    from plantbench.report.report import _cells
 
-    cases = {}
-    for c in _cells(Path(run_dir)):
-        if (c["capture"] / "views" / OBSERVED_FILE).is_file() and c["case"] not in cases:
-            cases[c["case"]] = c["capture"]
+    cases = {case: Path(folder) for case, folder in captures.items() if (Path(folder) / "views" / OBSERVED_FILE).is_file()}
     if not cases:
         return None
     names = sorted(cases)[:max_cases]

@@ -269,7 +269,7 @@ def _tables(table, sweep: str | None = None) -> list[tuple[str, str, object]]:
                               "suite's cases", comp))
     from plantbench.report.observation import observation_tables
 
-    out += observation_tables(table)
+    out += observation_tables(table, wide_table)
     if "family" in table.columns and table["family"].nunique() > 1:
         fam, _ = comparison_table(table, compared, by="family")
         if not fam.empty:
@@ -508,7 +508,8 @@ def write_report(run_dir: str | os.PathLike, formats: tuple[str, ...] = FORMATS,
         figures += real_figures(run_dir, table, out / "figures")
     from plantbench.report.observation import observed_figure
 
-    for extra in (observed_figure(run_dir, out / "figures" / "observed.png"),
+    captures = {c["case"]: c["capture"] for c in _cells(run_dir)}
+    for extra in (observed_figure(captures, out / "figures" / "observed.png"),
                   distance_figure(run_dir, out / "figures" / "distances.png"),
                   leaf_figure(run_dir, out / "figures" / "leaves.png"),
                   timeline_figure(run_dir, out / "figures" / "timeline.png")):

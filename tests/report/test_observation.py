@@ -13,6 +13,7 @@ from plantbench.report.observation import (
     observed_per_plant,
     oracle_ratio,
 )
+from plantbench.report.report import wide_table
 
 
 def _rows(case, method, values, status="ok"):
@@ -49,10 +50,10 @@ def test_oracle_ratio_of_means_split_at_the_observed_share_with_failures_at_zero
 
 
 def test_observation_tables_only_with_the_metrics():
-    slugs = [s for s, _, _ in observation_tables(_table())]
+    slugs = [s for s, _, _ in observation_tables(_table(), wide_table)]
     assert slugs == ["observed", "inference", "oracle_ratio"]
     none = _table()[~_table()["metric"].isin([OBSERVED, BREAST])]
-    assert observation_tables(none) == []
+    assert observation_tables(none, wide_table) == []
 
 
 def test_dbh_checked_only_where_the_stem_was_observed():
