@@ -77,13 +77,14 @@ def stratified_bootstrap_ci(values: np.ndarray, strata: np.ndarray, *, n_boot: i
                             seed: int = 0) -> tuple[float, float]:
     """Percentile bootstrap interval of the mean of ``values`` (n,) resampled within each stratum (``strata``, (n,)
     labels: the species of a suite whose species are its fixed design, each stratum keeping its size); (nan, nan)
-    when a stratum holds fewer than 2 values (resampling one value gives no interval)."""
+    when a stratum holds fewer than 2 values (resampling one value gives no interval) or there is one stratum (the
+    plain bootstrap, :func:`bootstrap_ci`, is then the same interval)."""
     v = np.asarray(values, float)
     labels = np.asarray(strata)
     keep = np.isfinite(v)
     v, labels = v[keep], labels[keep]
     groups = [v[labels == s] for s in sorted(set(labels.tolist()))]
-    if not groups or min(len(g) for g in groups) < 2:
+    if len(groups) < 2 or min(len(g) for g in groups) < 2:
         return float("nan"), float("nan")
     rng = np.random.Generator(np.random.PCG64(seed))
     sums = np.zeros(n_boot)
