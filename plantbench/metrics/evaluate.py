@@ -14,7 +14,8 @@ None, never NaN; :func:`evaluate_detailed` also returns why:
 * no ``views/cameras.json`` or instance maps: reprojection;
 * no ``scan/scan.ply`` and no observed cloud given: the GT-free skeleton support (``support.*``, the share of the
   skeleton's length near an observed point, tolerance a fraction of the observed cloud's height above z = 0, or,
-  for ``support.skeleton@spacing``, max(1 % of that height, twice the observed points' median spacing));
+  for ``support.skeleton@spacing``, max(1 % of that height, twice the observed points' median spacing); and the
+  reverse, ``support.coverage@spacing``, the share of the observed points within that of the skeleton's surface);
 * no ``leaves.json`` in the output: leaf metrics; no ``points.ply``: points metrics; no ``skeleton.ply``: Stava and
   skeleton metrics;
 * a ground truth without leaves: the foliage part of the point and surface metrics; a trunk shorter than breast
@@ -236,7 +237,7 @@ def _support_metrics(values: dict, reasons: dict, samples, observed: np.ndarray 
     (:func:`~plantbench.metrics.skeleton.skeleton_samples`), None without a skeleton."""
     from plantbench.geometry.clouds import cloud_height, median_spacing
     from plantbench.metrics.points import tau_label
-    from plantbench.metrics.skeleton import HEIGHT_FRACTIONS, skeleton_support
+    from plantbench.metrics.skeleton import HEIGHT_FRACTIONS, skeleton_coverage, skeleton_support
 
     obs_height = cloud_height(observed) if observed is not None and len(observed) else 0.0
     if samples is None or observed is None or obs_height <= 0:
@@ -249,6 +250,8 @@ def _support_metrics(values: dict, reasons: dict, samples, observed: np.ndarray 
     _set(values, reasons, "support", None if shares is None else
          {**{f"skeleton@{tau_label(f)}": v for f, v in zip(HEIGHT_FRACTIONS, shares)}, "skeleton@spacing": shares[-1]},
          "the skeleton has no length")
+    _set(values, reasons, "support", {"coverage@spacing": skeleton_coverage(samples, observed, tolerance=sparse)},
+         "the skeleton has no sample")
     _set(values, reasons, "support", {"spacing_cm": 100.0 * spacing if np.isfinite(spacing) else None},
          "fewer than 2 observed points")
 

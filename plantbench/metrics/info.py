@@ -147,6 +147,9 @@ for _f in HEIGHT_FRACTIONS:
 _add("support.skeleton@spacing", "", True,
      "GT-free: share of skeleton length within max(1% of the observed height, 2 x the median spacing of the observed "
      "points) of an observed point: meaningful on scans sparser than 1% of the height")
+_add("support.coverage@spacing", "", True,
+     "GT-free completeness: share of the observed points within max(1% of the observed height, 2 x their median "
+     "spacing) of the skeleton's surface (distance to the axis minus the radius; TreeQSM's coverage)")
 _add("support.spacing_cm", "cm", None, "median distance from an observed point to its nearest other point")
 _add("skeleton.branch_count", "", None, "reconstructed branch count (unbranched chains; Guo et al. 2018, |B|)")
 _add("skeleton.branch_count_rel_error", "", False, "|branch count - GT| / GT")

@@ -47,7 +47,8 @@ from plantbench.plant import Skeleton, check_shape
 from plantbench.skeletons import branch_chains, stem_at_height
 
 __all__ = ["THRESHOLDS", "HEIGHT_FRACTIONS", "STRUCTURE_FRACTION", "SkeletonSamples", "skeleton_samples", "sample_skeleton",
-           "sample_weights", "skeleton_prf", "skeleton_attributes", "dbh", "skeleton_support", "crown_area"]
+           "sample_weights", "skeleton_prf", "skeleton_attributes", "dbh", "skeleton_support", "skeleton_coverage",
+           "crown_area"]
 
 THRESHOLDS = (0.5, 1.0, 2.0)
 """Radius-relative tolerances of the Smart-Tree protocol (multiples of the local ground-truth radius)."""
@@ -350,6 +351,32 @@ def skeleton_support(skeleton: Skeleton | SkeletonSamples, observed: np.ndarray,
         return None
     d = threshold_distances(obs, s.points, tolerances, query_tree=s.tree)
     return [_weighted_share(w, d <= t) for t in tolerances]
+
+
+def skeleton_coverage(skeleton: Skeleton | SkeletonSamples, observed: np.ndarray, *, tolerance: float,
+                      step: float = 0.001, neighbours: int = 8) -> float | None:
+    """Share of the observed points within ``tolerance`` (metres) of the skeleton's surface: the reverse of
+    :func:`skeleton_support`, what of the scan the reconstruction explains (TreeQSM's coverage, the cylinder model's
+    fit to the cloud). A point's distance to the surface is, over its ``neighbours`` nearest axis samples (each
+    sample at most ``tolerance`` + the largest radius away), the smallest distance to the sample minus the sample's
+    radius (the distance to a cylinder's axis minus its radius); a point with no sample that near is not covered.
+    A skeleton that leaves part of the crown out leaves those points uncovered, however well what it drew lies on
+    the scan. None when the skeleton has no sample or there is no observed point."""
+    obs = check_shape("observed points", observed, (-1, 3), "f")
+    if not tolerance > 0:
+        from plantbench.errors import InputError
+
+        raise InputError(f"skeleton_coverage: tolerance must be > 0, got {tolerance}")
+    s = _samples(skeleton, step)
+    if not len(obs) or not len(s.points):
+        return None
+    reach = float(tolerance) + float(s.radii.max(initial=0.0))
+    k = min(int(neighbours), len(s.points))
+    d, i = s.tree.query(obs, k=k, distance_upper_bound=reach * (1 + 1e-9))
+    d, i = d.reshape(len(obs), k), i.reshape(len(obs), k)
+    found = np.isfinite(d)
+    surface = np.where(found, d - np.append(s.radii, 0.0)[np.where(found, i, len(s.points))], np.inf)
+    return float(np.mean(surface.min(axis=1) <= tolerance))
 
 
 def dbh(skeleton: Skeleton, *, breast_height: float = 1.3) -> float | None:

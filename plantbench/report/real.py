@@ -233,12 +233,14 @@ def real_tables(run_dir: str | os.PathLike, table) -> list[tuple[str, str, objec
         wide = q.pivot_table(index=["case", "source"], columns="trait", values="value", aggfunc="first")
         cols = [t for t in COMPARED_TRAITS if t in wide.columns]
         df = wide[cols].map(format_value).reset_index().rename(columns={"source": "method"})
-        support = table[(table["metric"] == "support.skeleton@spacing") & (table["status"] == "ok")
-                        & (table["family"] == "real")]
-        sup = {(r.case, r.method): format_value(r.value) for r in support.itertuples()}
-        df["support@spacing"] = [sup.get((c, m), "-") for c, m in zip(df["case"], df["method"])]
-        out.append(("traits", "Real captures: each method's traits from its QSM export (plantbench qsm export) and "
-                              "its skeleton's share within max(1 % H, 2 x spacing) of the scan", df))
+        for metric, column in (("support.skeleton@spacing", "support@spacing"),
+                               ("support.coverage@spacing", "coverage@spacing")):
+            rows = table[(table["metric"] == metric) & (table["status"] == "ok") & (table["family"] == "real")]
+            got = {(r.case, r.method): format_value(r.value) for r in rows.itertuples()}
+            df[column] = [got.get((c, m), "-") for c, m in zip(df["case"], df["method"])]
+        out.append(("traits", "Real captures: each method's traits from its QSM export (plantbench qsm export), its "
+                              "skeleton's share within max(1 % H, 2 x spacing) of the scan (support: precision) and "
+                              "the scan's share within that of its surface (coverage: completeness)", df))
     comp = trait_comparison(run_dir, table)
     if not comp.empty:
         out.append(("references", "Traits against the reference QSMs of the same cloud (TreeQSM, SimpleForest, "

@@ -8,7 +8,13 @@ import pytest
 
 from plantbench.errors import InputError
 from plantbench.metrics.leaves import SPACING_FRACTION, leaf_detection, median_spacing
-from plantbench.metrics.skeleton import sample_skeleton, sample_weights, skeleton_prf, skeleton_support
+from plantbench.metrics.skeleton import (
+    sample_skeleton,
+    sample_weights,
+    skeleton_coverage,
+    skeleton_prf,
+    skeleton_support,
+)
 from plantbench.plant import Skeleton
 
 from .synth import random_tree
@@ -115,6 +121,32 @@ def test_skeleton_support_brute_force(rng):
     assert skeleton_support(t, np.zeros((0, 3)), tolerances=(tol,)) is None
     with pytest.raises(InputError):
         skeleton_support(t, obs, tolerances=(0.0,))
+
+
+def test_skeleton_coverage_cylinder_and_brute_force(rng):
+    """Points on a cylinder's bark are covered, points a tolerance beyond it are not; on a random tree the share
+    matches a brute-force loop over every sample (distance to the sample minus its radius)."""
+    n = 21
+    stem = Skeleton(np.stack([np.zeros(n), np.zeros(n), np.linspace(0, 2, n)], 1), np.full(n, 0.2),
+                    np.arange(-1, n - 1))
+    phi = rng.uniform(0, 2 * np.pi, 500)
+    z = rng.uniform(0.1, 1.9, 500)
+    bark = np.stack([0.2 * np.cos(phi), 0.2 * np.sin(phi), z], 1)
+    assert skeleton_coverage(stem, bark, tolerance=0.01) == pytest.approx(1.0)
+    assert skeleton_coverage(stem, bark * [1.1, 1.1, 1.0], tolerance=0.01) == pytest.approx(0.0)  # 2 cm out
+    half = np.concatenate([bark[:250], bark[250:] * [1.1, 1.1, 1.0]])
+    assert skeleton_coverage(stem, half, tolerance=0.01) == pytest.approx(0.5)
+    t = random_tree(rng, 6)
+    obs = t.positions + rng.normal(0, 0.02, t.positions.shape)  # about half within the tolerance of the bark
+    tol = 0.015
+    pts, radii = sample_skeleton(t, 0.002)
+    naive = np.mean([np.min(np.linalg.norm(pts - p, axis=1) - radii) <= tol for p in obs])
+    assert 0.1 < naive < 0.9
+    assert skeleton_coverage(t, obs, tolerance=tol, step=0.002) == pytest.approx(naive)
+    assert skeleton_coverage(EMPTY, obs, tolerance=tol) is None
+    assert skeleton_coverage(t, np.zeros((0, 3)), tolerance=tol) is None
+    with pytest.raises(InputError):
+        skeleton_coverage(t, obs, tolerance=0.0)
 
 
 def test_median_spacing_brute_force(rng):
