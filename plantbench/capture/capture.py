@@ -1,8 +1,8 @@
 """``capture_case``: render the views and simulate the scan of one case (docs/design.md, On-disk contracts, Capture).
 
 Writes ``CASE/views/`` (images/NNNN.png, depth/NNNN.npy, instance/NNNN.png, foliage/NNNN.png, optional
-normal/NNNN.npy, cameras.json, colmap/, transforms.json, capture.json) and, when scanning, ``CASE/scan/``
-(scan.ply, stations.json).
+normal/NNNN.npy, cameras.json, colmap/, transforms.json, observed_wood.npz, capture.json) and, when scanning,
+``CASE/scan/`` (scan.ply, stations.json, observed_wood.npz: :mod:`plantbench.capture.observed`).
 
 Crash safety: both folders are built in hidden temporary siblings; only when both are complete are the old folders
 removed and the new ones renamed into place, scan/ first and views/ last. ``views/capture.json`` is therefore the
@@ -302,7 +302,7 @@ def _write_observed_views(folder: Path, plant: Plant, cameras: list[Camera], dep
                           instances: list[np.ndarray]) -> float:
     """``folder/observed_wood.npz``: the share of each ground-truth edge's bark the views observed
     (:mod:`plantbench.capture.observed`); returns the volume-weighted share of the wood."""
-    from plantbench.capture import observed as ob
+    import plantbench.capture.observed as ob
 
     samples = ob.wood_samples(plant.skeleton, step=ob.STEP_FRACTION * plant.height)
     seen = ob.observed_in_views(samples, cameras, depths, instances)
@@ -316,7 +316,7 @@ def _write_observed_views(folder: Path, plant: Plant, cameras: list[Camera], dep
 def _write_observed_scan(folder: Path, plant: Plant, points: np.ndarray, label: np.ndarray) -> float:
     """``folder/observed_wood.npz``: the share of each ground-truth edge's bark within twice the scan's median
     spacing of a wood return; returns the volume-weighted share of the wood."""
-    from plantbench.capture import observed as ob
+    import plantbench.capture.observed as ob
 
     tolerance = 2.0 * float(median_spacing(points)) if len(points) > 1 else 0.0
     samples = ob.wood_samples(plant.skeleton, step=ob.STEP_FRACTION * plant.height)
