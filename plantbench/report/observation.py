@@ -168,6 +168,7 @@ def observed_figure(captures: dict[str, Path], path: str | os.PathLike, *, view:
     from plantbench.cameras import read_cameras
     from plantbench.capture.observed import OBSERVED_FILE, observed_share, read_observed
     from plantbench.io.plantio import read_plant
+    from plantbench.report.figures import save_png
 
     cases = {case: Path(folder) for case, folder in captures.items() if (Path(folder) / "views" / OBSERVED_FILE).is_file()}
     if not cases:
@@ -198,8 +199,4 @@ def observed_figure(captures: dict[str, Path], path: str | os.PathLike, *, view:
                title=f"{case}: {observed_share(plant.skeleton, share):.2f} observed")
         ax.title.set_fontsize(8)
     fig.suptitle("Ground-truth skeleton over a view: bark observed (green) / hidden (red) by the capture", fontsize=9)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_png(fig, path)
