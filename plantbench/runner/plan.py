@@ -404,7 +404,8 @@ def _method_jobs(plan: Plan, s: Suite, resolved: dict, case: _Case, sweep_value,
             {"method": spec, "case": case.key, "points": points_key,
              "seed": case.seed, "species": case.hint_species, "options": options},
             deps=tuple(deps), timeout_s=s.timeout_s))
-        observed_from = "scan" if method.inputs == "scan" else None  # (None: the views', else the scan's)
+        # the wood the method's capture observed: a scan suite's points methods (and its oracles) read the scan
+        observed_from = "scan" if method.inputs == "scan" or s.source == "scan" else None  # (None: views, else scan)
         metrics_key = plan.add(Job("metrics", content_hash(
             ["metrics", recon_key, version_code["metrics"], observed_from]),
             {"case": case.key, "recon": recon_key, "observed_from": observed_from}, deps=(recon_key,),
