@@ -81,11 +81,15 @@ def prune(plant: Plant, max_order: int) -> Plant:
     return _subplant(plant, keep, sk.parents >= 0)
 
 
-def cut_to_observed(plant: Plant, share: np.ndarray, *, min_share: float = 0.5) -> Plant:
+def cut_to_observed(plant: Plant, share: np.ndarray, *, min_share: float | None = None) -> Plant:
     """The plant cut to the wood its capture observed: the edges (``Skeleton.edges`` order) whose observed
-    ``share`` (:mod:`plantbench.capture.observed`) is at least ``min_share``, with their end nodes and the leaves of
+    ``share`` (:mod:`plantbench.capture.observed`) is at least ``min_share`` (None: the metrics' cut,
+    :data:`plantbench.metrics.skeleton.OBSERVED_EDGE`), with their end nodes and the leaves of
     those nodes; a kept node whose own edge is hidden starts a new stem (a root). The calibration rung that scores
     observation 1 and inference 0."""
+    from plantbench.metrics.skeleton import OBSERVED_EDGE
+
+    min_share = OBSERVED_EDGE if min_share is None else min_share
     sk = plant.skeleton
     share = np.asarray(share, float)
     child = np.flatnonzero(sk.parents >= 0)

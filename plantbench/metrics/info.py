@@ -125,10 +125,10 @@ for _w, _weighting in (("v", "volume-weighted skeleton {} within {} of plant hei
 for _f in HEIGHT_FRACTIONS:
     _add(f"skeleton.vf1_observed@{tau_label(_f)}", "", True,
          f"observation: vF1 within {tau_label(_f)} of plant height, precision against the whole truth, recall over the "
-         "wood the capture observed (plantbench.capture.observed)")
+         "edges the capture observed (at least half their bark; plantbench.capture.observed)")
     _add(f"skeleton.vrecall_hidden@{tau_label(_f)}", "", True,
-         f"inference: volume-weighted recall within {tau_label(_f)} of plant height over the wood the capture did not "
-         "observe")
+         f"inference: volume-weighted recall within {tau_label(_f)} of plant height over the hidden edges' wood "
+         f"farther than {tau_label(_f)} of plant height from the observed")
 _add("capture.observed_wood_share", "", None,
      "volume-weighted share of the ground-truth wood the method's capture observed (views: a wood pixel of agreeing "
      "exact depth in >= 2 views; scans: a wood return within 2 x the median spacing); the same for every method")

@@ -46,7 +46,7 @@ import numpy as np
 from plantbench.plant import Skeleton, check_shape
 from plantbench.skeletons import branch_chains, stem_at_height
 
-__all__ = ["THRESHOLDS", "HEIGHT_FRACTIONS", "STRUCTURE_FRACTION", "SkeletonSamples", "skeleton_samples", "sample_skeleton",
+__all__ = ["THRESHOLDS", "HEIGHT_FRACTIONS", "STRUCTURE_FRACTION", "OBSERVED_EDGE", "SkeletonSamples", "skeleton_samples", "sample_skeleton",
            "sample_weights", "skeleton_prf", "skeleton_attributes", "dbh", "skeleton_support", "skeleton_coverage",
            "crown_area"]
 
@@ -148,9 +148,9 @@ def skeleton_prf(gt: Skeleton | SkeletonSamples, pred: Skeleton | SkeletonSample
 
     With ``gt_observed`` ((e,) the share of each ground-truth edge the capture observed,
     :mod:`plantbench.capture.observed`) and ``height``, also 'vf1_observed@f' (the volume-weighted precision against
-    the whole truth with the recall over the observed wood only: each ground-truth sample weighs its volume times its
-    edge's observed share) and 'vrecall_hidden@f' (the recall over the rest, the wood the method had to infer; None
-    when every part of the wood was observed).
+    the whole truth with the recall over the observed edges only, those observed at least :data:`OBSERVED_EDGE`) and
+    'vrecall_hidden@f' (the recall over the hidden edges' wood farther than the tolerance from the observed: what the
+    method had to infer; None when there is none).
 
     ``gt`` and ``pred`` may be given as their samples (:func:`skeleton_samples`, when the caller shares them with
     other metrics); ``step`` is then theirs."""
@@ -195,27 +195,43 @@ def skeleton_prf(gt: Skeleton | SkeletonSamples, pred: Skeleton | SkeletonSample
     return out
 
 
+OBSERVED_EDGE = 0.5
+"""A ground-truth edge counts as observed when the capture observed at least this share of its bark (the rung that
+keeps the observed edges, :func:`plantbench.methods.ladder.cut_to_observed`, uses the same cut)."""
+
+
 def _observed_scores(g: SkeletonSamples, gt_observed: np.ndarray, d_g: np.ndarray | None, taus: list[float],
                      fractions: tuple[float, ...], scores: dict) -> dict[str, float | None]:
     """'vf1_observed@f' and 'vrecall_hidden@f' of :func:`skeleton_prf`; ``d_g``: (k,) the ground-truth samples'
-    distances as thresholded there (None without predicted samples)."""
+    distances as thresholded there (None without predicted samples).
+
+    An edge is observed when its share is at least :data:`OBSERVED_EDGE`. The hidden wood a method had to infer is
+    the unobserved edges' samples farther than the tolerance (plus the sample spacing, which brings in the observed
+    edges' end nodes) from every observed sample: a skeleton that only draws the observed wood recovers none of it,
+    and the hidden wood within the tolerance of the observed (a twig's first centimetres beside its observed limb) is
+    scored by neither metric's recall."""
     from plantbench.metrics.points import tau_label
+    from plantbench.metrics.surface import threshold_distances
 
     share = np.asarray(gt_observed, float)
     if share.ndim != 1 or len(g.edge) != g.edge_samples or (len(g.edge) and int(g.edge.max()) >= len(share)):
         raise ValueError("gt_observed needs one share per ground-truth edge")
     e = g.edge_samples
     w = g.weights(True)[:e]
-    seen, hidden = w * share[g.edge], w * (1.0 - share[g.edge])
+    seen = share[g.edge] >= OBSERVED_EDGE
+    pts = g.points[:e]
+    gap = float(g.length[:e].max(initial=0.0))  # samples lie this close along an edge: its end node is within it
+    to_seen = threshold_distances(pts[seen], pts, [t + gap for t in taus]) if seen.any() else np.full(e, np.inf)
     out: dict[str, float | None] = {}
     for f, tau in zip(fractions, taus):
         lab = tau_label(f)
         near = d_g[:e] < tau if d_g is not None else np.zeros(e, bool)
-        rec = float(seen[near].sum() / seen.sum()) if seen.sum() > 0 else 0.0
+        ws = w * seen
+        rec = float(ws[near].sum() / ws.sum()) if ws.sum() > 0 else 0.0
         prec = scores[f"vprecision@{lab}"]
         out[f"vf1_observed@{lab}"] = 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0
-        out[f"vrecall_hidden@{lab}"] = float(hidden[near].sum() / hidden.sum()) if hidden.sum() > 1e-12 * w.sum() \
-            else None
+        wh = w * (~seen & (to_seen >= tau + gap))
+        out[f"vrecall_hidden@{lab}"] = float(wh[near].sum() / wh.sum()) if wh.sum() > 1e-12 * w.sum() else None
     return out
 
 
