@@ -222,11 +222,11 @@ def _observed_scores(g: SkeletonSamples, gt_observed: np.ndarray, d_g: np.ndarra
     pts = g.points[:e]
     gap = float(g.length[:e].max(initial=0.0))  # samples lie this close along an edge: its end node is within it
     to_seen = threshold_distances(pts[seen], pts, [t + gap for t in taus]) if seen.any() else np.full(e, np.inf)
+    ws = w * seen
     out: dict[str, float | None] = {}
     for f, tau in zip(fractions, taus):
         lab = tau_label(f)
         near = d_g[:e] < tau if d_g is not None else np.zeros(e, bool)
-        ws = w * seen
         rec = float(ws[near].sum() / ws.sum()) if ws.sum() > 0 else 0.0
         prec = scores[f"vprecision@{lab}"]
         out[f"vf1_observed@{lab}"] = 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0

@@ -152,6 +152,12 @@ def observation_tables(table, wide_table) -> list[tuple[str, str, object]]:
     return out
 
 
+_PANEL_IN = 2.4
+"""Width of a panel of :func:`observed_figure`, inches."""
+_VIEW_PX = 128
+"""The view behind a panel is shown at about this many pixels across."""
+
+
 def observed_figure(captures: dict[str, Path], path: str | os.PathLike, *, view: int = 0,
                     max_cases: int = 30) -> Path | None:
     """A panel per case (``captures``: case -> its capture folder; up to ``max_cases``): the ground-truth skeleton
@@ -176,7 +182,8 @@ def observed_figure(captures: dict[str, Path], path: str | os.PathLike, *, view:
     names = sorted(cases)[:max_cases]
     cols = min(5, len(names))
     rows = -(-len(names) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.0 * cols, 3.1 * rows), squeeze=False, layout="constrained")
+    fig, axes = plt.subplots(rows, cols, figsize=(_PANEL_IN * cols, (_PANEL_IN + 0.1) * rows), squeeze=False,
+                             layout="constrained")
     for ax in axes.ravel():
         ax.axis("off")
     for ax, case in zip(axes.ravel(), names):
@@ -189,9 +196,10 @@ def observed_figure(captures: dict[str, Path], path: str | os.PathLike, *, view:
         e = plant.skeleton.edges
         uv, z = cam.project(plant.skeleton.positions)
         r = 0.5 * (plant.skeleton.radii[e[:, 0]] + plant.skeleton.radii[e[:, 1]])
-        points_per_px = 3.0 * 72 / cam.width  # the panel is about 3 inches wide
+        points_per_px = _PANEL_IN * 72 / cam.width
         width = np.clip(2 * r * cam.K[0, 0] / np.maximum(z[e[:, 1]], 1e-6) * points_per_px, 0.15, 3.0)
-        ax.imshow(img, alpha=0.35)
+        step = max(1, cam.width // _VIEW_PX)  # the view as a faint backdrop: a small one keeps the PNG small
+        ax.imshow(img[::step, ::step], alpha=0.35, extent=(-0.5, cam.width - 0.5, cam.height - 0.5, -0.5))
         order = np.argsort(share)[::-1]  # hidden (red) drawn last, over the observed
         ax.add_collection(LineCollection(np.stack([uv[e[order, 0]], uv[e[order, 1]]], 1),
                                          colors=plt.cm.RdYlGn(share[order]), linewidths=width[order]))
@@ -199,4 +207,4 @@ def observed_figure(captures: dict[str, Path], path: str | os.PathLike, *, view:
                title=f"{case}: {observed_share(plant.skeleton, share):.2f} observed")
         ax.title.set_fontsize(8)
     fig.suptitle("Ground-truth skeleton over a view: bark observed (green) / hidden (red) by the capture", fontsize=9)
-    return save_png(fig, path)
+    return save_png(fig, path, dpi=80)
