@@ -26,7 +26,7 @@ from scipy.ndimage import uniform_filter
 
 from plantbench.backend import load_mitsuba
 from plantbench.capture import views as cv
-from plantbench.capture.scene import scene_dict
+from plantbench.capture.scene import GUIDES_INTEGRATOR, scene_dict
 from plantbench.capture.settings import CaptureOptions
 from plantbench.io.plantio import read_plant
 from plantbench.seeding import rng
@@ -85,21 +85,17 @@ def main() -> None:
     o = CaptureOptions(views=a.views, width=a.size, height=a.size, scan=False)
     cams = cv.place_cameras(surface, o.views, elevation=o.elevation, fov_x_deg=o.fov_deg, width=o.width,
                          height=o.height, fill=o.fill)
-    # the scene differs between settings only in its integrator (the denoising guides); the render takes its spp
-    scenes: dict[bool, object] = {}
+    # one scene for every setting: the render takes its spp, and a denoised setting renders the guides beside it
+    d = scene_dict(plant, cams, o, rng(a.seed, "capture", "scene"), mi=mi)
+    scene = mi.load_dict(d)
+    guides = mi.load_dict(GUIDES_INTEGRATOR)
+    maps = cv.exact_maps(cams[a.view], cv.ground_truth_mesh(plant), cv.ground_truth_caster(plant, scene=scene,
+                                                                                         scene_dict=d))
     images, seconds = [], []
-    maps = None
     for spp, denoise in settings:
-        if denoise not in scenes:
-            d = scene_dict(plant, cams, o.model_copy(update={"denoise": denoise}), rng(a.seed, "capture", "scene"),
-                           mi=mi)
-            scenes[denoise] = mi.load_dict(d)
-            if maps is None:
-                maps = cv.exact_maps(cams[a.view], cv.ground_truth_mesh(plant),
-                                  cv.ground_truth_caster(plant, scene=scenes[denoise], scene_dict=d))
-        scene = scenes[denoise]
         t0 = time.perf_counter()
-        img = cv.to_srgb8(cv.render_colour(scene, a.view, spp=spp, seed=a.seed + a.view, mi=mi))
+        img = cv.to_srgb8(cv.render_colour(scene, a.view, spp=spp, seed=a.seed + a.view, mi=mi,
+                                            guides=guides if denoise else None))
         seconds.append(time.perf_counter() - t0)
         images.append(img.astype(np.float64))
         print(f"{spp} spp{' denoised' if denoise else ''}: {seconds[-1]:.1f} s", flush=True)

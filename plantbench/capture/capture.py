@@ -268,10 +268,13 @@ def _write_views(folder: Path, plant: Plant, cameras: list[Camera], scene, gt, c
     names = [f"{i:04d}.png" for i in range(len(cameras))]
     images, depths, instances = [], [], []
     t_render = t_maps = 0.0
+    from plantbench.capture.scene import GUIDES_INTEGRATOR
+
+    guides = mi.load_dict(GUIDES_INTEGRATOR) if options.denoise else None
     for i, cam in enumerate(cameras):
         t0 = time.perf_counter()
         rgb = to_srgb8(render_colour(scene, i, spp=options.spp, seed=derive_seed(seed, "capture", "render", i) % 2**32,
-                                     mi=mi))
+                                     mi=mi, guides=guides))
         if options.image_noise:
             noise_rng = rng(seed, "capture", "image_noise", options.image_noise_seed, i)
             rgb = add_grey_noise(rgb, options.image_noise, noise_rng)

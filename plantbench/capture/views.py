@@ -71,23 +71,25 @@ def place_cameras(points: np.ndarray, n: int, *, elevation: tuple[float, float],
     return cams
 
 
-def render_colour(scene, view: int, *, spp: int, seed: int, mi) -> np.ndarray:
-    """Path-trace view ``view`` of a loaded scene (its sensors in view order). A scene whose integrator also renders
-    the albedo and normal guides (:data:`plantbench.capture.scene.AOV_CHANNELS`: a denoising capture) is denoised
-    with Intel Open Image Denoise (its RT filter, high quality, HDR input, the guides prefiltered by the filter).
+def render_colour(scene, view: int, *, spp: int, seed: int, mi, guides=None) -> np.ndarray:
+    """Path-trace view ``view`` of a loaded scene (its sensors in view order). With ``guides`` (the loaded
+    :data:`plantbench.capture.scene.GUIDES_INTEGRATOR`: a denoising capture) the albedo and normal guides are rendered
+    by it at the same sensor, samples and seed, and the colour is denoised with Intel Open Image Denoise (its RT
+    filter, high quality, HDR input, the guides prefiltered by the filter).
 
     Returns
     -------
     (h, w, 3) float32 linear RGB
     """
-    img = np.asarray(mi.render(scene, sensor=view, spp=spp, seed=seed), np.float32)
-    if img.shape[-1] < 9:
-        return img[..., :3]
+    img = np.asarray(mi.render(scene, sensor=view, spp=spp, seed=seed), np.float32)[..., :3]
+    if guides is None:
+        return img
     import pyoidn
 
-    colour, albedo, normal = (np.ascontiguousarray(img[..., k:k + 3]) for k in (0, 3, 6))
-    return np.asarray(pyoidn.denoise(np.maximum(colour, 0.0), np.clip(albedo, 0.0, 1.0), np.clip(normal, -1.0, 1.0),
-                                     hdr=True, quality="high"), np.float32)
+    aux = np.asarray(mi.render(scene, sensor=view, spp=spp, seed=seed, integrator=guides), np.float32)
+    albedo, normal = (np.ascontiguousarray(aux[..., k:k + 3]) for k in (0, 3))
+    return np.asarray(pyoidn.denoise(np.maximum(np.ascontiguousarray(img), 0.0), np.clip(albedo, 0.0, 1.0),
+                                     np.clip(normal, -1.0, 1.0), hdr=True, quality="high"), np.float32)
 
 
 def to_srgb8(linear: np.ndarray) -> np.ndarray:

@@ -223,7 +223,7 @@ def reconstruct_points(capture_dir: str | Path, out_dir: str | Path, params: MVS
         images = [images[i] for i in used]
     stats["views_used"] = len(used)
     native = cameras
-    if params.max_size is not None and params.depth != "oracle":
+    if params.max_size and params.depth != "oracle":
         images, cameras, stats["working_scale"] = downscale_views(images, cameras, params.max_size)
     scale = scene_scale(cameras)
     if params.depth == "oracle":

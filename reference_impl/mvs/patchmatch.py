@@ -760,8 +760,9 @@ def estimate_depth(
         if coarse:
             eng = _Engine(ref, srcs, ref_cam, src_cams, p, checker=p.coarse_checker)
         # each level runs its own schedule of perturbation scales (0.5^i, i = 0, 1, ...)
+        only_textured = p.pm_textured_only or (coarse and p.fine_textured_only)
         depth, normal_cam, cost = eng.patchmatch(depth.astype(np.float32), normal_cam, near, far, rng,
-                                                 active=textured if p.pm_textured_only else None,
+                                                 active=textured if only_textured else None,
                                                  random_depth=coarse and p.fine_random_depth)
     elif not refine:
         normal_cam = np.zeros(depth.shape + (3,), np.float32)
@@ -811,8 +812,9 @@ def refine_geometric(
 
 def search_range(near: float, far: float, p: DepthParams) -> tuple[float, float, int]:
     """The depths searched for a scene between ``near`` and ``far`` (:attr:`DepthParams.background_span`): (near,
-    the far end moved back by that fraction of the inverse-depth span, the plane count raised in proportion)."""
-    if not p.background_span > 0:
+    the far end moved back by that fraction of the inverse-depth span, the plane count raised in proportion).
+    ``p`` as :meth:`DepthParams.for_view` resolves it (an automatic span left unresolved searches no background)."""
+    if not (p.background_span or 0.0) > 0:
         return near, far, p.hypotheses
     inv_far = 1.0 / far - p.background_span * (1.0 / near - 1.0 / far)
     inv_far = max(inv_far, 0.01 / far)  # (a finite far end: 100 x the scene's)

@@ -274,3 +274,32 @@ def test_place_cameras_fill_the_frame(rng, fill):
         off = np.abs(uv - (np.array([cam.width, cam.height]) - 1) / 2) / half
         assert off.max() <= fill + 1e-9
         assert off.max() > fill - 1e-3  # tight on at least one axis
+
+
+def test_denoised_render_is_closer_to_a_converged_one(captured):
+    """A denoising capture's colour (the path tracer at 2 spp, the guides from the separate ``aov`` integrator,
+    Open Image Denoise) lies closer to a 64 spp render of the same view than the raw 2 spp render does; the guides are
+    the albedo (in [0, 1]) and unit shading normals of the surfaces the instance map says are there."""
+    from plantbench.backend import load_mitsuba
+    from plantbench.capture.scene import GUIDES_INTEGRATOR, scene_dict
+    from plantbench.capture.views import render_colour
+    from plantbench.io.plantio import read_plant
+
+    mi = load_mitsuba()
+    case, _ = captured
+    plant, _ = read_plant(case)
+    cams, _ = read_cameras(case / "views" / "cameras.json")
+    scene = mi.load_dict(scene_dict(plant, cams[:1], SETTINGS, np.random.default_rng(0), mi=mi))
+    guides = mi.load_dict(GUIDES_INTEGRATOR)
+    aux = np.asarray(mi.render(scene, sensor=0, spp=2, seed=3, integrator=guides))
+    _, inst = _maps(case, 0)
+    hit = inst >= 1
+    assert aux.shape[-1] == 6
+    assert np.all((aux[..., :3] >= -1e-6) & (aux[..., :3] <= 1 + 1e-6))
+    assert np.median(np.abs(np.linalg.norm(aux[..., 3:6][hit], axis=-1) - 1.0)) < 1e-3
+    reference = render_colour(scene, 0, spp=64, seed=11, mi=mi)
+    noisy = render_colour(scene, 0, spp=2, seed=3, mi=mi)
+    denoised = render_colour(scene, 0, spp=2, seed=3, mi=mi, guides=guides)
+    assert denoised.shape == noisy.shape == reference.shape
+    err = [float(np.sqrt(np.mean((np.clip(x, 0, 1) - np.clip(reference, 0, 1))[hit] ** 2))) for x in (noisy, denoised)]
+    assert err[1] < 0.7 * err[0], err

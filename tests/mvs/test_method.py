@@ -149,6 +149,7 @@ def test_max_size_matches_at_a_reduced_size_and_writes_depth_at_the_views_size(c
         assert z["depth"].shape == (128, 128)
     with pytest.raises(InputError, match="max_size"):
         MVSParams(max_size=10)
+    assert MVSParams().max_size == 1024 and MVSParams(max_size=0).max_size == 0
 
 
 def test_sfm_options_reach_their_group():

@@ -414,10 +414,23 @@ def test_windows_scale_with_the_view(size, sweep, step, sigma):
     assert (p.sweep_window, p.pm_step, p.bilateral_sigma_space) == (sweep, step, sigma)
     assert (p.pm_radius, p.hypotheses, p.max_cost) == (DepthParams().pm_radius, 128, DepthParams().max_cost)
     assert p.for_view(*size) == p  # scaled once: the result is pinned at its sizes
+    assert p.background_span == (0.5 if sweep > 5 else 0.0)  # the background search where the windows scale
+
+
+@pytest.mark.parametrize(("given", "size", "expected"), [
+    (None, (512, 512), 0.0), (None, (1024, 1024), 0.5), (None, (2048, 1536), 0.5), (0.0, (1024, 1024), 0.0),
+    (0.25, (512, 512), 0.25)])
+def test_background_span_follows_the_view_unless_given(given, size, expected):
+    """Automatic (None): 0.5 where the windows run at twice their 512 px size or more, 0 below; a given value is
+    kept at every size; window_scale = 1 (windows pinned) keeps the automatic span at 0."""
+    assert DepthParams(background_span=given).for_view(*size).background_span == expected
+    assert DepthParams(window_scale=1).for_view(2048, 2048).background_span == 0.0
+    with pytest.raises(InputError, match="background_span"):
+        DepthParams(background_span=-0.1)
 
 
 def test_window_scale_option():
-    p = DepthParams(window_scale=1, pm_step=2, sweep_window=7)
+    p = DepthParams(window_scale=1, pm_step=2, sweep_window=7, background_span=0.0)
     assert p.for_view(1024, 1024) is p
     q = DepthParams(window_scale=3).for_view(256, 256)
     assert (q.sweep_window, q.pm_step, q.bilateral_sigma_space) == (13, 3, 9.0)
