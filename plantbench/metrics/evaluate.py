@@ -280,7 +280,7 @@ def _reprojection_metrics(values: dict, reasons: dict, case: Path, mesh, scene) 
     """``reprojection.*``: the mesh's silhouettes against the case's instance masks (no ground truth needed).
     ``scene``: the mesh's ray-casting scene (:func:`~plantbench.metrics.surface.raycasting_scene`), or None."""
     from plantbench.cameras import read_cameras
-    from plantbench.metrics.reprojection import render_silhouettes, reprojection_error
+    from plantbench.metrics.reprojection import render_silhouettes, reprojection_error, strided
 
     cam_path = case / "views" / "cameras.json"
     if mesh is None or not cam_path.is_file() or not (case / "views" / "instance").is_dir():
@@ -288,7 +288,10 @@ def _reprojection_metrics(values: dict, reasons: dict, case: Path, mesh, scene) 
              "no mesh.ply in the output" if mesh is None else "no views/cameras.json or views/instance/")
         return
     cameras, images = read_cameras(cam_path)
-    res = reprojection_error(_read_masks(case, cameras, images), render_silhouettes(mesh, cameras, scene=scene))
+    masks = _read_masks(case, cameras, images)
+    scored = [strided(cam) for cam in cameras]  # large views: a regular subset of their pixels (the module's doc)
+    masks = [m[::s, ::s] for m, (_, s) in zip(masks, scored, strict=True)]
+    res = reprojection_error(masks, render_silhouettes(mesh, [c for c, _ in scored], scene=scene))
     err = res.per_view_error[np.isfinite(res.per_view_error)]
     _set(values, reasons, "reprojection", {
         "error": res.error, "error_max": float(err.max()) if len(err) else None,

@@ -122,15 +122,88 @@ def _blade(leaf: Leaf) -> TriMesh:
 
 def _mean_distance(source: TriMesh, target: TriMesh) -> float:
     """Area-weighted mean over ``source``'s triangles of the exact distance from each triangle's centroid to
-    ``target`` (a blade without area: the mean over its vertices)."""
+    ``target`` (a blade without area: the mean over its vertices). One pair at a time: the reference
+    :func:`_mean_distances` is checked against, and its fallback."""
     from plantbench.metrics.surface import point_to_mesh_distances
 
+    queries, weights = _queries(source)
+    return float(np.average(point_to_mesh_distances(target, queries), weights=weights))
+
+
+def _queries(source: TriMesh) -> tuple[np.ndarray, np.ndarray]:
+    """The points of ``source`` whose distances :func:`_mean_distance` averages, and their weights: the centroids of
+    its triangles with area, weighted by it; the vertices, equally, of a blade without area."""
     area = source.face_areas()
-    if not area.sum() > 0:  # a degenerate blade (no width or no length): the mean over its vertices
-        return float(point_to_mesh_distances(target, source.vertices).mean())
-    centroid = source.vertices[source.faces].mean(axis=1)
+    if not area.sum() > 0:
+        return source.vertices, np.ones(len(source.vertices))
     keep = area > 0
-    return float(np.average(point_to_mesh_distances(target, centroid[keep]), weights=area[keep]))
+    return source.vertices[source.faces[keep]].mean(axis=1), area[keep]
+
+
+def _mean_distances(sources: list[TriMesh], targets: list[TriMesh]) -> np.ndarray:
+    """:func:`_mean_distance` of every (source k, target k), in one Open3D scene: each pair is moved to its own cell
+    of a cubic grid (centred on the cell's point), the cells ``4 r`` apart plus a margin, r the largest distance
+    of any pair's vertex from its pair's centre, so that a query's closest triangle in the whole scene is one of its
+    own target's (its own target lies within 2 r of it, every other cell's beyond 2 r + margin; checked on the
+    closest triangles' ids, and any pair that failed the check is measured alone). Centred cells also keep the float32
+    coordinates small (a grid of a few metres for a crown's leaves)."""
+    import open3d as o3d
+
+    from plantbench.backend import open3d_threads
+
+    k = len(sources)
+    centre = np.empty((k, 3))
+    radius = np.empty(k)
+    for i, (a, b) in enumerate(zip(sources, targets, strict=True)):
+        v = np.concatenate([a.vertices, b.vertices])
+        centre[i] = 0.5 * (v.min(axis=0) + v.max(axis=0))
+        radius[i] = np.linalg.norm(v - centre[i], axis=1).max()
+    cells = int(np.ceil(k ** (1 / 3) - 1e-9))
+    spacing = 4.0 * float(radius.max()) * 1.01 + 1e-3
+    if cells * spacing > 1e3:  # a pair metres wide: float32 would lose the distances on such a grid
+        return np.array([_mean_distance(a, b) for a, b in zip(sources, targets, strict=True)])
+    idx = np.arange(k)
+    shift = np.stack([idx % cells, (idx // cells) % cells, idx // cells**2], 1) * spacing - centre
+    faces, verts, offset = [], [], 0
+    for i, b in enumerate(targets):
+        verts.append(b.vertices + shift[i])
+        faces.append(b.faces + offset)
+        offset += len(b.vertices)
+    first_face = np.cumsum([0] + [len(b.faces) for b in targets])
+    scene = o3d.t.geometry.RaycastingScene(nthreads=open3d_threads())
+    scene.add_triangles(o3d.core.Tensor(np.concatenate(verts).astype(np.float32)),
+                        o3d.core.Tensor(np.concatenate(faces).astype(np.uint32)))
+    q = [_queries(a) for a in sources]
+    owner = np.repeat(idx, [len(p) for p, _ in q])
+    points = np.concatenate([p + shift[i] for i, (p, _) in enumerate(q)]).astype(np.float32)
+    weights = np.concatenate([w for _, w in q])
+    hit = scene.compute_closest_points(o3d.core.Tensor(points), nthreads=open3d_threads())
+    dist = np.linalg.norm(hit["points"].numpy().astype(np.float64) - points, axis=1)
+    own = np.searchsorted(first_face, hit["primitive_ids"].numpy().astype(np.int64), side="right") - 1 == owner
+    out = np.bincount(owner, weights * dist, k) / np.bincount(owner, weights, k)
+    for i in np.unique(owner[~own]):  # not expected (see above): measured alone
+        out[i] = _mean_distance(sources[i], targets[i])
+    return out
+
+
+def _blades(leaves: list[Leaf]) -> list[TriMesh]:
+    """:func:`_blade` of each leaf, the Bezier blades tessellated in one call."""
+    out: list[TriMesh | None] = [None] * len(leaves)
+    bezier = [i for i, lf in enumerate(leaves) if lf.params.get("model") != "quad"]
+    for i, lf in enumerate(leaves):
+        if lf.params.get("model") == "quad":
+            out[i] = _blade(lf)
+    if bezier:
+        omega = np.stack([BezierLeaf(**{k: v for k, v in leaves[i].params.items() if k in _BEZIER_FIELDS}).vector()
+                          for i in bezier])
+        t = np.stack([np.asarray(leaves[i].transform, np.float64) for i in bezier])
+        verts, faces = tessellate_placed(omega, np.array([leaves[i].length for i in bezier], np.float64),
+                                         t[:, :3, :3], t[:, :3, 3], SHAPE_RESOLUTION)
+        per = len(faces) // len(bezier)
+        local = faces[:per]  # leaf 0's block indexes its own vertices
+        for n, i in enumerate(bezier):
+            out[i] = TriMesh(verts[n], local)
+    return out
 
 
 def leaf_shape_errors(gt: list[Leaf], pred: list[Leaf], pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -141,15 +214,16 @@ def leaf_shape_errors(gt: list[Leaf], pred: list[Leaf], pairs: np.ndarray) -> tu
     returns : shape_error (k,) float, normal_angle_deg (k,) float
     """
     pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
-    shape = np.empty(len(pairs))
-    angle = np.empty(len(pairs))
-    for k, (i, j) in enumerate(pairs):
-        a, b = _blade(gt[i]), _blade(pred[j])
-        shape[k] = 0.5 * (_mean_distance(a, b) + _mean_distance(b, a)) / gt[i].length
-        na, nb = (np.asarray(leaf.transform, np.float64)[:3, 2] for leaf in (gt[i], pred[j]))
-        cos = abs(float(na @ nb)) / (np.linalg.norm(na) * np.linalg.norm(nb))
-        angle[k] = np.degrees(np.arccos(min(1.0, cos)))
-    return shape, angle
+    if not len(pairs):
+        return np.zeros(0), np.zeros(0)
+    a = _blades([gt[i] for i in pairs[:, 0]])
+    b = _blades([pred[j] for j in pairs[:, 1]])
+    lengths = np.array([gt[i].length for i in pairs[:, 0]], np.float64)
+    shape = 0.5 * (_mean_distances(a, b) + _mean_distances(b, a)) / lengths
+    na = np.stack([np.asarray(gt[i].transform, np.float64)[:3, 2] for i in pairs[:, 0]])
+    nb = np.stack([np.asarray(pred[j].transform, np.float64)[:3, 2] for j in pairs[:, 1]])
+    cos = np.abs(np.einsum("ij,ij->i", na, nb)) / (np.linalg.norm(na, axis=1) * np.linalg.norm(nb, axis=1))
+    return shape, np.degrees(np.arccos(np.minimum(1.0, cos)))
 
 
 def median_spacing(centroids: np.ndarray) -> float | None:

@@ -5,6 +5,12 @@ Per view i: error_i = #(rendered XOR reference) / #(reference), the reference be
 mean over views, beside IoU_i = #(rendered AND reference) / #(rendered OR reference) because the XOR ratio is
 unbounded above (a render that overshoots can exceed 1).
 
+Views larger than :data:`MAX_PX` are scored on a regular subset of their pixels (:func:`strided`): every s-th
+pixel centre along each axis, s = ceil(longer side / MAX_PX), the reference mask read at the same pixels and the
+silhouette cast through them (the same pixels' rays, exactly: a 1024 px view scores 512 x 512 of its own pixels).
+The counts of a uniform quarter of a megapixel estimate the ratios of the whole view; the silhouette's ray casting,
+which grew with the pixel count (a third of a 512 px multiview cell's metrics), stays at its 512 px cost.
+
 Degenerate input: a view whose reference mask is empty has no error_i (it is left out of the mean; error is None
 when every view is empty); its IoU is 1 when the render is empty too, else 0. Different view counts or image
 sizes raise InputError.
@@ -20,7 +26,21 @@ from plantbench.cameras import Camera
 from plantbench.errors import InputError
 from plantbench.plant import TriMesh
 
-__all__ = ["ReprojectionResult", "reprojection_error", "render_silhouettes"]
+__all__ = ["MAX_PX", "ReprojectionResult", "reprojection_error", "render_silhouettes", "strided"]
+
+MAX_PX = 512
+"""Longest side, in scored pixels, of a view (see the module docstring)."""
+
+
+def strided(camera: Camera, max_px: int = MAX_PX) -> tuple[Camera, int]:
+    """The camera whose pixel (u, v) is ``camera``'s pixel (s u, s v), s = ceil(longer side / ``max_px``) (1: the
+    camera itself), and s: its intrinsics scaled by 1 / s (OpenCV pixel centres at integers, so that u = s u' exactly)
+    and its image ceil(w / s) x ceil(h / s), the size of ``mask[::s, ::s]``."""
+    s = max(1, -(-max(camera.width, camera.height) // max_px))
+    if s == 1:
+        return camera, 1
+    k = np.diag([1.0 / s, 1.0 / s, 1.0]) @ camera.K
+    return Camera(k, camera.R, camera.t, -(-camera.width // s), -(-camera.height // s)), s
 
 
 @dataclass(frozen=True)

@@ -200,3 +200,46 @@ def test_crown_area_is_the_convex_hull_of_the_nodes_on_the_ground():
                    np.array([-1, 0, 1, 0]))
     assert crown_area(stem) is None and crown_area(fan) is None
     assert crown_area(Skeleton(np.zeros((0, 3)), np.zeros(0), np.zeros(0, int))) is None
+
+
+def test_leaf_shape_errors_in_one_scene_equal_the_pair_by_pair_distances(rng):
+    """The batched shape errors (every pair in its own cell of one Open3D scene) against the reference one pair at
+    a time (a scene per blade): 300 leaves over a 4 m crown, curled, rolled and of several lengths, each matched with
+    a perturbed copy, a quad, or a leaf a metre away (the largest pair sets the grid), plus a degenerate quad."""
+    from scipy.spatial.transform import Rotation
+
+    from plantbench.geometry.leaf import BezierLeaf
+    from plantbench.metrics.leaves import _blade, _mean_distance
+
+    def leaf(i, pos, rot, length, curl):
+        t = np.eye(4)
+        t[:3, :3], t[:3, 3] = rot, pos
+        params = BezierLeaf().__dict__.copy()
+        params.update(axis1_z=0.1 * curl, axis2_z=0.25 * curl, f_z2=0.05 * curl, g_z2=-0.04 * curl)
+        return Leaf(i, -1, t, params, length, 0.3 * length)
+
+    n = 300
+    pos = rng.uniform([-2, -2, 0], [2, 2, 4], (n, 3))
+    rots = Rotation.random(2 * n, random_state=1).as_matrix()
+    gt = [leaf(i, pos[i], rots[i], rng.uniform(0.05, 0.3), rng.uniform(0, 1)) for i in range(n)]
+    pred = []
+    for i in range(n):
+        kind = i % 3
+        if kind == 0:
+            pred.append(leaf(i, pos[i] + rng.normal(0, 0.01, 3), rots[n + i] if i % 2 else rots[i],
+                             gt[i].length * rng.uniform(0.8, 1.2), rng.uniform(0, 1)))
+        elif kind == 1:
+            t = np.array(gt[i].transform, float)
+            pred.append(Leaf(i, 3, t, {"model": "quad", "leaves": 2}, gt[i].length, 0.3 * gt[i].length))
+        else:
+            pred.append(leaf(i, pos[i] + rng.normal(0, 0.5, 3), rots[n + i], 0.2, 0.5))
+    pred[5] = Leaf(5, 3, np.array(gt[5].transform, float), {"model": "quad", "leaves": 1}, 0.2, 0.0)
+    pairs = np.stack([np.arange(n), np.arange(n)], 1)
+    shape, angle = leaf_shape_errors(gt, pred, pairs)
+    ref = np.array([0.5 * (_mean_distance(_blade(g), _blade(p)) + _mean_distance(_blade(p), _blade(g))) / g.length
+                    for g, p in zip(gt, pred, strict=True)])
+    assert np.allclose(shape, ref, rtol=1e-4, atol=1e-6), np.abs(shape - ref).max()
+    normals = [np.asarray(x.transform)[:3, 2] for x in (*gt, *pred)]
+    cos = np.abs([normals[i] @ normals[n + i] for i in range(n)])
+    assert np.allclose(angle, np.degrees(np.arccos(np.minimum(cos, 1.0))), atol=1e-5)
+    assert leaf_shape_errors(gt, pred, np.zeros((0, 2)))[0].shape == (0,)

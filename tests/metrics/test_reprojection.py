@@ -52,3 +52,27 @@ def test_silhouette_matches_projection_of_a_square():
     assert want.sum() > 100
     assert np.array_equal(sil, want)
     assert not render_silhouettes(TriMesh.empty(), [cam])[0].any()
+
+
+@pytest.mark.parametrize(("size", "stride"), [((512, 384), 1), ((1024, 768), 2), ((1023, 1024), 2), ((2048, 1536), 4)])
+def test_strided_camera_casts_through_the_views_own_pixels(size, stride):
+    """A view larger than MAX_PX is scored on every s-th pixel: the strided camera projects a point to (u / s, v / s)
+    of the full camera's pixel, its image is mask[::s, ::s]'s size, and its silhouette is the full silhouette at those
+    pixels, exactly (a slanted triangle fan, so that edges cut pixels at every phase)."""
+    from plantbench.metrics.reprojection import MAX_PX, strided
+
+    w, h = size
+    cam = look_at((0.3, -3.0, 0.8), (0.0, 0.0, 0.5), fov_x_deg=40, width=w, height=h)
+    small, s = strided(cam)
+    assert s == stride and max(small.width, small.height) <= MAX_PX
+    assert (small.height, small.width) == np.zeros((h, w))[::s, ::s].shape
+    pts = np.random.default_rng(0).uniform(-0.5, 0.5, (50, 3)) + [0, 0, 0.5]
+    assert np.allclose(small.project(pts)[0] * s, cam.project(pts)[0], atol=1e-9)
+    if s > 1 and w * h <= 1024 * 1024:
+        ang = np.linspace(0, 2 * np.pi, 14)
+        v = np.concatenate([[[0, 0, 0.5]], np.stack([0.45 * np.cos(ang), 0.2 * np.sin(3 * ang), 0.5 + 0.35 *
+                                                     np.sin(ang)], 1)])
+        mesh = TriMesh(v, np.array([[0, i, i + 1] for i in range(1, 14)]))
+        (full,) = render_silhouettes(mesh, [cam])
+        (part,) = render_silhouettes(mesh, [small])
+        assert part.any() and np.array_equal(part, full[::s, ::s])
