@@ -626,15 +626,27 @@ def _cells(run_dir: Path) -> list[dict]:
     return [c for c in cells if c["capture"].is_dir()]
 
 
+SAMPLE_VIEW_PX = 512
+"""Longest side of the sample views copied next to a report (larger views are area-averaged down to it)."""
+
+
 def _sample_views(run_dir: Path, out: Path, limit: int = 6) -> list[str]:
-    """Copy the first view of a few of the run's cases next to the report; returns relative paths."""
+    """Copy the first view of a few of the run's cases next to the report, at most :data:`SAMPLE_VIEW_PX` on its
+    longer side (a 1024 px view area-averaged by 2); returns relative paths."""
+    from PIL import Image
+
     rels = []
     cases = {c["case"]: c["capture"] for c in _cells(run_dir)}
     for case, folder in list(cases.items())[:limit]:
         img = folder / "views" / "images" / "0000.png"
         if img.exists():
             dst = out / "figures" / f"view_{case}.png"
-            shutil.copyfile(img, dst)
+            with Image.open(img) as im:
+                factor = -(-max(im.size) // SAMPLE_VIEW_PX)
+                if factor > 1:
+                    im.reduce(factor).save(dst)
+                else:
+                    shutil.copyfile(img, dst)
             rels.append(f"figures/{dst.name}")
     return rels
 
