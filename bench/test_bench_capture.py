@@ -34,7 +34,10 @@ MAX_VIEWS_RATIO = 2.5
 """capture_case / bare Mitsuba render. Measured 1.09 on the shared 2-core machine (issue 4's target 1.5); about 2.3x
 the measurement, so that only a real regression (a second render pass, a slow PNG or map path) fails."""
 MAX_VIEWS_1024_RATIO = 2.0
-"""capture_case at 1024 px, 4 spp denoised / the bare colour and guide renders (see the module docstring)."""
+"""capture_case at 1024 px, 4 spp denoised / the bare colour and guide renders (see the module docstring). Measured
+1.51 on the 2-core Zen 5 (68.9 s against 45.8 s; 1.74 against the colour renders alone, 39.6 s): Open Image Denoise
+(about 0.7 s a view on one thread), the exact maps and the PNGs on the bench's small plant; issue 64's target 1.2 is
+not met."""
 MAX_MAPS_FRACTION = 0.10
 """Exact maps / bare Mitsuba render. Measured 0.034 (issue 4's target 0.10, which is about 3x the measurement)."""
 MIN_SCAN_SPEED = 0.25
