@@ -104,20 +104,20 @@ _BEZIER_FIELDS = frozenset(f.name for f in dataclasses.fields(BezierLeaf))
 def _blade(leaf: Leaf) -> TriMesh:
     """The leaf's blade in world coordinates: tessellated from its Bezier parameters, or, for a flat quad leaf
     (``params["model"] == "quad"``, the baselines' leaf clusters), the rectangle [0, length] x [-width/2, width/2]
-    of its frame, as a grid of the same resolution."""
+    of its frame, as a grid of the same resolution (:func:`_blades` of the one leaf)."""
+    return _blades([leaf])[0]
+
+
+def _quad_blade(leaf: Leaf) -> TriMesh:
+    """:func:`_blade` of a flat quad leaf."""
     t = np.asarray(leaf.transform, np.float64)
-    if leaf.params.get("model") == "quad":
-        nu, nv = 2 * SHAPE_RESOLUTION[0], SHAPE_RESOLUTION[1]
-        x, y = np.meshgrid(np.linspace(0, leaf.length, nv + 1), np.linspace(-leaf.width / 2, leaf.width / 2, nu + 1))
-        local = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
-        i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
-        a = (i * (nv + 1) + j).ravel()
-        faces = np.concatenate([np.column_stack([a, a + 1, a + nv + 2]), np.column_stack([a, a + nv + 2, a + nv + 1])])
-        return TriMesh(local @ t[:3, :3].T + t[:3, 3], faces)
-    omega = BezierLeaf(**{k: v for k, v in leaf.params.items() if k in _BEZIER_FIELDS}).vector()
-    verts, faces = tessellate_placed(omega[None], np.array([leaf.length]), t[None, :3, :3], t[None, :3, 3],
-                                     SHAPE_RESOLUTION)
-    return TriMesh(verts[0], faces)
+    nu, nv = 2 * SHAPE_RESOLUTION[0], SHAPE_RESOLUTION[1]
+    x, y = np.meshgrid(np.linspace(0, leaf.length, nv + 1), np.linspace(-leaf.width / 2, leaf.width / 2, nu + 1))
+    local = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
+    a = (i * (nv + 1) + j).ravel()
+    faces = np.concatenate([np.column_stack([a, a + 1, a + nv + 2]), np.column_stack([a, a + nv + 2, a + nv + 1])])
+    return TriMesh(local @ t[:3, :3].T + t[:3, 3], faces)
 
 
 def _mean_distance(source: TriMesh, target: TriMesh) -> float:
@@ -192,7 +192,7 @@ def _blades(leaves: list[Leaf]) -> list[TriMesh]:
     bezier = [i for i, lf in enumerate(leaves) if lf.params.get("model") != "quad"]
     for i, lf in enumerate(leaves):
         if lf.params.get("model") == "quad":
-            out[i] = _blade(lf)
+            out[i] = _quad_blade(lf)
     if bezier:
         omega = np.stack([BezierLeaf(**{k: v for k, v in leaves[i].params.items() if k in _BEZIER_FIELDS}).vector()
                           for i in bezier])
