@@ -4,7 +4,9 @@ A job that finished before (its ``status.json`` is in the cache) is reused, what
 covers the code, so a fixed method gets a new key and runs again. A job whose process crashes, times out or
 writes an invalid output becomes a failed job with its log kept; jobs downstream of it are marked failed without
 running; every other job goes on. Ctrl-C kills the running job processes, removes their temporary folders and
-leaves every finished job in the cache, so the same command resumes.
+leaves every finished job in the cache, so the same command resumes. A job process stopped from outside (SIGTERM,
+SIGINT, SIGHUP or SIGKILL: a Dask worker shut down, a session's end, the kernel's out-of-memory killer) fails this
+run but is not cached: the next run computes it again instead of reusing an interruption as the job's result.
 """
 
 from __future__ import annotations
@@ -37,6 +39,24 @@ _STOP = threading.Event()
 
 class Interrupted(Exception):
     """The run was interrupted (Ctrl-C); the job's temporary folder was removed, nothing was cached."""
+
+
+STOP_SIGNALS = frozenset({signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGKILL})
+"""Signals that stop a job from outside (its worker or session ended, the out-of-memory killer): the job failed in
+this run, but that says nothing about its result, so it is not cached."""
+
+
+def _job_command(cache: Path, kind: str, key: str, tmp: Path, params: str) -> list[str]:
+    """The command line of a job process."""
+    return [sys.executable, "-m", "plantbench.runner", str(cache), kind, key, str(tmp), params]
+
+
+def _stopped_from_outside(status: dict) -> bool:
+    """Whether a cached status records a job process killed by one of STOP_SIGNALS (a cache written before such
+    jobs were left out of it)."""
+    error = status.get("error") or ""
+    return status.get("status") == "failed" and any(error == f"process killed by signal {int(s)}"
+                                                     for s in STOP_SIGNALS)
 
 
 def _read_status(folder: Path) -> dict | None:
@@ -93,6 +113,9 @@ def execute_job(cache: str, job: dict, threads: int | None = None, budget: int |
     kind, key = job["kind"], job["key"]
     final = job_folder(cache_p, kind, key)
     status = _read_status(final)
+    if status is not None and _stopped_from_outside(status):  # cached before such jobs were left out: run it again
+        shutil.rmtree(final, ignore_errors=True)
+        status = None
     if status is not None:
         return {**status, "reused": True}
     for dep in job["deps"]:
@@ -110,9 +133,10 @@ def execute_job(cache: str, job: dict, threads: int | None = None, budget: int |
     tmp = final.parent / f".{key}.{uuid.uuid4().hex[:8]}.tmp"
     tmp.mkdir(parents=True)
     params = json.dumps(job["params"])
-    cmd = [sys.executable, "-m", "plantbench.runner", str(cache_p), kind, key, str(tmp), params]
+    cmd = _job_command(cache_p, kind, key, tmp, params)
     t0 = time.perf_counter()
     started = time.time()
+    stopped = False  # the process was stopped from outside (STOP_SIGNALS)
     try:
         with open(tmp / "job.log", "w") as log:
             proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
@@ -126,6 +150,7 @@ def execute_job(cache: str, job: dict, threads: int | None = None, budget: int |
                     sig = -proc.returncode if proc.returncode < 0 else None
                     why = f"killed by signal {sig}" if sig else f"exited {proc.returncode} without a status"
                     record = {"status": "failed", "error": f"process {why}", "kind": kind, "key": key}
+                    stopped = sig in STOP_SIGNALS
             except subprocess.TimeoutExpired:
                 _kill(proc)
                 record = {"status": "timeout", "error": f"timed out after {job['timeout_s']:.0f} s", "kind": kind,
@@ -135,6 +160,10 @@ def execute_job(cache: str, job: dict, threads: int | None = None, budget: int |
                     _RUNNING.pop(proc.pid, None)
         if _STOP.is_set():
             raise Interrupted(f"{kind} {key}")
+        if stopped:  # not the job's result: nothing cached, the next run computes it again
+            shutil.rmtree(tmp, ignore_errors=True)
+            return {**record, "error": record["error"] + " from outside; not cached, the next run computes it again",
+                    "seconds": time.perf_counter() - t0, "reused": False, "interrupted": True}
         record["seconds"] = record.get("seconds") or (time.perf_counter() - t0)
         # the run's timeline (epoch seconds) and the threads of plantbench's pools
         record.update(started=started, finished=time.time(), threads=budget if budget is not None else threads)

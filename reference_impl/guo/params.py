@@ -116,6 +116,10 @@ class GuoParams:
     """Without a species prior, every density peak above this fraction of the highest one is a root [S]."""
     trunk_fit_height: float = 0.06
     """The cross-section fit uses the points between 1 % and this fraction of the height above the root [S]."""
+    stem_sections: bool = True
+    """Move each stem's lowest 30 % onto the axis of circles fitted to the cloud's stem sections where they are one
+    stem's bark ring (:func:`reference_impl.common.roots.recentre_stems`): shoots grown towards markers on a thick
+    trunk's bark run along its bark [S: docs/tuning/xu.md]. False: the stems stay where the growth put them."""
     breast_height_fit: bool = True
     """Scale every radius so the stem's radius 1.3 m above the base matches a circle fitted to the cloud there, on
     plants taller than 3 m whose stem shows bark at breast height (:func:`reference_impl.common.roots.

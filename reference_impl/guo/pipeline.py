@@ -38,7 +38,7 @@ from reference_impl.common.geometry import branch_mesh
 from reference_impl.common.graph import edge_lengths, median_spacing, voxel_downsample
 from reference_impl.common.ground import Ground
 from reference_impl.common.inputs import plant_height, split_ground
-from reference_impl.common.roots import breast_height_scale, refuse_implausible_radii
+from reference_impl.common.roots import breast_height_scale, recentre_stems, refuse_implausible_radii
 from reference_impl.common.skeleton_ops import branch_orders, remove_nodes, simplify, trim_unsupported_tips
 from reference_impl.guo.growth import allometric_radii, grow
 from reference_impl.guo.hull import crown_mask, poisson_disk_in_hull, shell_ratio
@@ -423,6 +423,8 @@ def model(prep: Prepared, prior: SpeciesPrior, params: GuoParams, rng: np.random
     pos, par, _ = smooth(gpos[keep], par, angle_deg=params.smooth_angle, min_spacing=0.25 * ell)
     rad = allometric_radii(pos, par, prep.root_radii, prior.diameter_coefficient, levels=vectors.levels(par))
     rad = np.maximum(rad, 0.5 * prior.tip_radius)
+    if params.stem_sections:
+        pos, par, rad, _ = recentre_stems(prep.plant, pos, par, rad, height=prep.height)
     if params.breast_height_fit:
         rad = rad * breast_height_scale(prep.plant, pos, par, rad)
     refuse_implausible_radii(rad, prep.height, "guo")

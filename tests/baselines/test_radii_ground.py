@@ -183,6 +183,36 @@ def test_breast_height_scale_leaves_shrubs_and_missing_stems_alone(rng):
     assert breast_height_scale(np.r_[far, blob], pos, par, np.full(len(pos), 0.1)) == 1.0
 
 
+def test_stem_sections_move_a_skeleton_on_the_bark_onto_the_axis(rng):
+    """A trunk of radius 0.3 m (bark points all round) and a skeleton that climbs it along the bark, 0.28 m off the
+    axis, with a branch at 4 m: the stem's nodes up to 30 % of the height move within 2 cm of the axis (nodes added
+    where its edges were longer than two radii), the branch above stays, and a stem seen from one side only (a
+    quarter of its directions: no bark ring) stays where it was."""
+    from reference_impl.common.roots import recentre_stems
+
+    pts, _, _ = _tapering_stem(rng, 8.0, lambda z: 0.3 + 0 * z, n=60000)
+    z = np.linspace(0.0, 8.0, 9)
+    pos = np.r_[np.c_[np.full(9, 0.28), np.zeros(9), z], [[2.0, 0.0, 5.0]]]
+    par = np.r_[-1, np.arange(8), 4]
+    rad = np.r_[np.full(9, 0.25), 0.05]
+    out, par2, rad2, moved = recentre_stems(pts, pos, par, rad, height=8.0)
+    assert len(out) > len(pos) and moved >= 5
+    assert np.array_equal(par2[:len(par)][par2[:len(par)] < len(par)], par[par2[:len(par)] < len(par)])
+    low = out[:, 2] <= 0.3 * 8.0 - 0.5
+    assert np.hypot(out[low, 0], out[low, 1]).max() < 0.02
+    assert np.array_equal(out[len(pos) - 1], pos[-1]) and np.array_equal(out[8], pos[8])  # above the reach
+    assert np.allclose(rad2[len(pos):], 0.25)
+    # the added nodes split the stem's edges: following the parents from the top node still reaches the root
+    node, seen = 8, 0
+    while par2[node] >= 0:
+        node, seen = par2[node], seen + 1
+    assert node == 0 and seen > 8
+
+    side, _, _ = _tapering_stem(rng, 8.0, lambda z: 0.3 + 0 * z, n=60000, arc=np.pi / 2)
+    out, par3, _, moved = recentre_stems(side, pos, par, rad, height=8.0)
+    assert moved == 0 and np.array_equal(out, pos) and np.array_equal(par3, par)  # the added nodes removed again
+
+
 def test_implausible_radii_are_refused():
     from plantbench.errors import PlantbenchError
     from reference_impl.common.roots import refuse_implausible_radii
