@@ -25,7 +25,9 @@ def _job() -> dict:
 
 def _self_signal(sig: int):
     def command(cache, kind, key, tmp, params):
-        return [sys.executable, "-c", f"import os, signal; os.kill(os.getpid(), {int(sig)})"]
+        # the default action first: a parent started under nohup passes SIGHUP on ignored, Python catches SIGINT
+        reset = "" if sig == signal.SIGKILL else f"signal.signal({int(sig)}, signal.SIG_DFL); "
+        return [sys.executable, "-c", f"import os, signal; {reset}os.kill(os.getpid(), {int(sig)})"]
     return command
 
 
