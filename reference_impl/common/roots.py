@@ -432,7 +432,6 @@ def finish_stems(points: np.ndarray, positions: np.ndarray, parents: np.ndarray,
     return positions, parents, radii
 
 
-
 def recentre_stems(points: np.ndarray, positions: np.ndarray, parents: np.ndarray, radii: np.ndarray, *,
                    height: float, reach: float = 0.3) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Every stem's lowest stretch moved onto the axis of the cloud's stem sections, the way TreeQSM and 3DFin fit a
@@ -440,8 +439,8 @@ def recentre_stems(points: np.ndarray, positions: np.ndarray, parents: np.ndarra
 
     The chain from each root along the thickest child, up to ``reach`` of the plant's height, is first divided so
     that no edge is longer than two radii (nodes added in the middle of its edges, appended after the existing
-    ones, radii interpolated; those that do not move are removed again, so a stem no section fits keeps its nodes). Each chain node's section, a slab two radii thick across the chain's local direction,
-    is fitted with :func:`stem_radius`'s nested circles (``in_stem``, windows up to three radii); where the circle
+    ones, radii interpolated; those that do not move are removed again, so a stem no section fits keeps its nodes).
+    Each chain node's section, a slab two radii thick across the chain's local direction, is fitted with :func:`stem_radius`'s nested circles (``in_stem``, windows up to three radii); where the circle
     is one stem's bark ring (:func:`_bark_ring`: 60 % of the points near it on it, reaching three quarters of the
     directions around it, at most a tenth inside it) with a radius within 0.5-2x the node's, the node moves across
     the axis to the circle's centre. Elsewhere (a one-sided arc, too few points, a fork, a circle through the
@@ -456,8 +455,9 @@ def recentre_stems(points: np.ndarray, positions: np.ndarray, parents: np.ndarra
     pos = np.asarray(positions, float)
     par = np.asarray(parents, np.int64)
     rad = np.asarray(radii, float)
-    new_pos, new_par, new_rad = [pos], par.copy(), [rad]
-    n = len(pos)
+    par = par.copy()
+    add_pos, add_par, add_rad = [], [], []  # the nodes added to divide the chains' edges
+    n0 = n = len(pos)
     chains = []
     ptr, kids = children_csr(par)
     for root in np.flatnonzero(par < 0):
@@ -475,19 +475,20 @@ def recentre_stems(points: np.ndarray, positions: np.ndarray, parents: np.ndarra
             prev = a
             for j in range(1, k + 1):
                 f = j / (k + 1)
-                new_pos.append((pos[a] + f * (pos[b] - pos[a]))[None])
-                new_rad.append(np.array([rad[a] + f * (rad[b] - rad[a])]))
-                new_par = np.append(new_par, prev)
+                add_pos.append(pos[a] + f * (pos[b] - pos[a]))
+                add_rad.append(rad[a] + f * (rad[b] - rad[a]))
+                add_par.append(prev)
                 prev = n
                 full.append(n)
                 n += 1
-            new_par[b] = prev
+            par[b] = prev
             full.append(b)
         chains.append(full)
-    n0 = len(positions)
-    pos, par, rad = np.concatenate(new_pos), new_par, np.concatenate(new_rad)
+    if add_pos:
+        pos = np.concatenate([pos, np.array(add_pos)])
+        par = np.concatenate([par, np.array(add_par, np.int64)])
+        rad = np.concatenate([rad, np.array(add_rad)])
     out = pos.copy()
-    moved = 0
     shifted = np.zeros(len(pos), bool)
     for chain in chains:
         for k, i in enumerate(chain):
@@ -507,9 +508,8 @@ def recentre_stems(points: np.ndarray, positions: np.ndarray, parents: np.ndarra
             if _bark_ring(on, sectors, inside) and 0.5 * r <= rf <= 2.0 * r:
                 out[i] = pos[i] + _perp(centre - pos[i], d)
                 shifted[i] = True
-                moved += 1
     keep = shifted | (np.arange(len(pos)) < n0)  # an added node that did not move is only a point of its edge
     if not keep.all():
         par, _ = remove_nodes(par, keep)
         out, rad = out[keep], rad[keep]
-    return out, par, rad, moved
+    return out, par, rad, int(shifted.sum())
