@@ -440,8 +440,9 @@ def recentre_stems(points: np.ndarray, positions: np.ndarray, parents: np.ndarra
     The chain from each root along the thickest child, up to ``reach`` of the plant's height, is first divided so
     that no edge is longer than two radii (nodes added in the middle of its edges, appended after the existing
     ones, radii interpolated; those that do not move are removed again, so a stem no section fits keeps its nodes).
-    Each chain node's section, a slab two radii thick across the chain's local direction, is fitted with :func:`stem_radius`'s nested circles (``in_stem``, windows up to three radii); where the circle
-    is one stem's bark ring (:func:`_bark_ring`: 60 % of the points near it on it, reaching three quarters of the
+    Each chain node's section, a slab two radii thick across the chain's local direction, is fitted with
+    :func:`stem_radius`'s nested circles (``in_stem``, windows up to three radii); where the circle is one stem's bark
+    ring (:func:`_bark_ring`: 60 % of the points near it on it, reaching three quarters of the
     directions around it, at most a tenth inside it) with a radius within 0.5-2x the node's, the node moves across
     the axis to the circle's centre. Elsewhere (a one-sided arc, too few points, a fork, a circle through the
     stems of a shrub's base) it stays.
@@ -452,42 +453,8 @@ def recentre_stems(points: np.ndarray, positions: np.ndarray, parents: np.ndarra
     volume-weighted score weighs most [S: docs/tuning/xu.md].
 
     Returns ``positions``, ``parents``, ``radii`` (with the added nodes) and how many nodes moved."""
-    pos = np.asarray(positions, float)
-    par = np.asarray(parents, np.int64)
-    rad = np.asarray(radii, float)
-    par = par.copy()
-    add_pos, add_par, add_rad = [], [], []  # the nodes added to divide the chains' edges
-    n0 = n = len(pos)
-    chains = []
-    ptr, kids = children_csr(par)
-    for root in np.flatnonzero(par < 0):
-        chain, node = [int(root)], int(root)
-        while ptr[node + 1] > ptr[node] and pos[node, 2] - pos[root, 2] < reach * height:
-            ch = kids[ptr[node]:ptr[node + 1]]
-            node = int(ch[np.argmax(rad[ch])])
-            chain.append(node)
-        if len(chain) < 2:
-            continue
-        full = [chain[0]]
-        for a, b in zip(chain[:-1], chain[1:]):
-            step = 2.0 * max(min(rad[a], rad[b]), 1e-9)
-            k = min(int(np.ceil(np.linalg.norm(pos[b] - pos[a]) / step)) - 1, 50)
-            prev = a
-            for j in range(1, k + 1):
-                f = j / (k + 1)
-                add_pos.append(pos[a] + f * (pos[b] - pos[a]))
-                add_rad.append(rad[a] + f * (rad[b] - rad[a]))
-                add_par.append(prev)
-                prev = n
-                full.append(n)
-                n += 1
-            par[b] = prev
-            full.append(b)
-        chains.append(full)
-    if add_pos:
-        pos = np.concatenate([pos, np.array(add_pos)])
-        par = np.concatenate([par, np.array(add_par, np.int64)])
-        rad = np.concatenate([rad, np.array(add_rad)])
+    pos, par, rad, chains = _divided_stem_chains(positions, parents, radii, reach * height)
+    n0 = len(positions)
     out = pos.copy()
     shifted = np.zeros(len(pos), bool)
     for chain in chains:
@@ -513,3 +480,47 @@ def recentre_stems(points: np.ndarray, positions: np.ndarray, parents: np.ndarra
         par, _ = remove_nodes(par, keep)
         out, rad = out[keep], rad[keep]
     return out, par, rad, int(shifted.sum())
+
+
+def _divided_stem_chains(positions: np.ndarray, parents: np.ndarray, radii: np.ndarray,
+                         reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[list[int]]]:
+    """Each root's chain along its thickest child, up to ``reach`` above the root, with its edges divided so that no
+    edge is longer than two radii (at most 50 nodes per edge, appended after the existing nodes, radii interpolated).
+
+    Returns the new ``positions``, ``parents``, ``radii`` and the chains as node lists from the root up."""
+    pos = np.asarray(positions, float)
+    par = np.asarray(parents, np.int64).copy()
+    rad = np.asarray(radii, float)
+    add_pos, add_par, add_rad = [], [], []
+    n = len(pos)
+    chains = []
+    ptr, kids = children_csr(par)
+    for root in np.flatnonzero(par < 0):
+        chain, node = [int(root)], int(root)
+        while ptr[node + 1] > ptr[node] and pos[node, 2] - pos[root, 2] < reach:
+            ch = kids[ptr[node]:ptr[node + 1]]
+            node = int(ch[np.argmax(rad[ch])])
+            chain.append(node)
+        if len(chain) < 2:
+            continue
+        full = [chain[0]]
+        for a, b in zip(chain[:-1], chain[1:]):
+            step = 2.0 * max(min(rad[a], rad[b]), 1e-9)
+            k = min(int(np.ceil(np.linalg.norm(pos[b] - pos[a]) / step)) - 1, 50)
+            prev = a
+            for j in range(1, k + 1):
+                f = j / (k + 1)
+                add_pos.append(pos[a] + f * (pos[b] - pos[a]))
+                add_rad.append(rad[a] + f * (rad[b] - rad[a]))
+                add_par.append(prev)
+                prev = n
+                full.append(n)
+                n += 1
+            par[b] = prev
+            full.append(b)
+        chains.append(full)
+    if add_pos:
+        pos = np.concatenate([pos, np.array(add_pos)])
+        par = np.concatenate([par, np.array(add_par, np.int64)])
+        rad = np.concatenate([rad, np.array(add_rad)])
+    return pos, par, rad, chains
