@@ -178,9 +178,24 @@ def test_breast_height_scale_leaves_shrubs_and_missing_stems_alone(rng):
     pts, pos, par = _tapering_stem(rng, 2.5, lambda z: 0.03 + 0 * z)  # shorter than 3 m: breast height is crown
     assert breast_height_scale(pts, pos, par, np.full(len(pos), 0.06)) == 1.0
     pts, pos, par = _tapering_stem(rng, 6.0, lambda z: 0.05 + 0 * z)
-    blob = rng.normal(0, 0.3, (20000, 3)) + [0, 0, 1.3]  # foliage at breast height: no bark ring to fit
-    far = pts[np.abs(pts[:, 2] - 1.3) > 0.5]
+    blob = rng.normal(0, 0.3, (20000, 3)) + [0, 0, 1.3]  # foliage over the band's sections: no bark ring to fit
+    far = pts[np.abs(pts[:, 2] - 1.3) > 0.65]
     assert breast_height_scale(np.r_[far, blob], pos, par, np.full(len(pos), 0.1)) == 1.0
+
+
+def test_breast_height_scale_reads_the_band_around_breast_height(rng):
+    """Foliage hides the stem's bark from 1.15 to 1.45 m (the breast-height section alone finds no bark ring there),
+    the bark above and below is seen: the sections of the band +-0.45 m still give the stem's radius at 1.3 m."""
+    from reference_impl.common.roots import breast_height_scale
+
+    pts, pos, par = _tapering_stem(rng, 6.0, lambda z: 0.10 - 0.01 * z)  # bark radius 8.7 cm at 1.3 m
+    hidden = np.abs(pts[:, 2] - 1.3) <= 0.15
+    blob = rng.normal(0, 0.15, (3000, 3)) + [0, 0, 1.3]
+    blob = blob[np.abs(blob[:, 2] - 1.3) <= 0.15]
+    model = 0.2 - 0.02 * pos[:, 2]
+    scale = breast_height_scale(np.r_[pts[~hidden], blob], pos, par, model)
+    assert scale * (0.2 - 0.02 * 1.3) == pytest.approx(0.10 - 0.013, rel=0.05)
+    assert breast_height_scale(np.r_[pts[~hidden], blob], pos, par, model, band=0.0) == 1.0  # one section: none
 
 
 def test_stem_sections_move_a_skeleton_on_the_bark_onto_the_axis(rng):
