@@ -26,9 +26,9 @@ oracle (issue 63's acceptance)."""
 
 
 def observed_per_plant(table):
-    """One row per case: species, family, the observed share of its wood and whether its stem's breast height was
-    observed (both the same for every method reading the same capture; the median over them). Empty when the run
-    has no observed-wood metrics."""
+    """One row per case (per sweep level and case in a run with a sweep): species, family, the observed share of its
+    wood and whether its stem's breast height was observed (both the same for every method reading the same
+    capture; the median over them). Empty when the run has no observed-wood metrics."""
     import pandas as pd
 
     ok = table[(table["status"] == "ok") & table["metric"].isin([OBSERVED, BREAST])]
@@ -36,14 +36,34 @@ def observed_per_plant(table):
     if ok.empty:
         return pd.DataFrame(columns=["case", "species", "family", OBSERVED, BREAST])
     keys = [c for c in ("case", "species", "family") if c in ok.columns]
+    if _levels(table) != [None]:
+        keys = ["sweep"] + keys
     wide = ok.pivot_table(index=keys, columns="metric", values="value", aggfunc="median").reset_index()
     for m in (OBSERVED, BREAST):
         if m not in wide.columns:
             wide[m] = np.nan
-    return wide.sort_values(OBSERVED).reset_index(drop=True)
+    return wide.sort_values([k for k in ("sweep",) if k in wide.columns] + [OBSERVED]).reset_index(drop=True)
 
 
 def oracle_ratio(table, oracle_table=None, *, metric: str = OBSERVATION, threshold: float = WELL_OBSERVED):
+    """:func:`_oracle_ratio`, per level of a run with a sweep (a ``sweep`` column first)."""
+    import pandas as pd
+
+    levels = _levels(table)
+    if levels == [None]:
+        return _oracle_ratio(table, oracle_table, metric=metric, threshold=threshold)
+    parts = []
+    for level in levels:
+        other = oracle_table
+        if other is not None and "sweep" in other.columns:
+            other = other[other["sweep"] == level]
+        parts.append(_oracle_ratio(table[table["sweep"] == level], other, metric=metric,
+                                   threshold=threshold).assign(sweep=level))
+    out = pd.concat(parts, ignore_index=True)
+    return out[["sweep"] + [c for c in out.columns if c != "sweep"]]
+
+
+def _oracle_ratio(table, oracle_table=None, *, metric: str = OBSERVATION, threshold: float = WELL_OBSERVED):
     """Each method's ``metric`` on its cloud over the same on the oracle cloud (ratio of the means over the plants
     both scored, a failed cell counted 0), over the plants whose observed share is at least ``threshold`` and over
     the others. The oracle cells are ``METHOD@oracle`` rows of ``table``, or the same method's rows of
@@ -82,11 +102,32 @@ def oracle_ratio(table, oracle_table=None, *, metric: str = OBSERVATION, thresho
     return pd.DataFrame(rows, columns=["method", "group", "plants", "mean", "oracle_mean", "ratio"])
 
 
+def _levels(table) -> list:
+    """The run's sweep levels when it has more than one (a scan suite's beam spacings), else [None]: a plant is a
+    case at one level, and a table over plants is made per level."""
+    if "sweep" not in table.columns or table["sweep"].notna().sum() == 0:
+        return [None]
+    levels = list(dict.fromkeys(table["sweep"].dropna()))
+    return levels if len(levels) > 1 else [None]
+
+
 def dbh_check(table, *, within: float = 0.10):
     """Each method's DBH against the truth (the gt row's ``skeleton.dbh_cm``) on the plants whose capture observed
     the stem at breast height: plants checked, within ``within`` of the truth, within 0.5-2x, and the plants skipped
     because the stem was hidden there or is shorter than breast height (a failed cell counts as checked and not
-    within). Returns a DataFrame: method, checked, within, within_2x, median_rel_error, hidden, short."""
+    within). A run with a sweep (several captures of each plant) is checked per level, with a ``sweep`` column first.
+    Returns a DataFrame: [sweep,] method, checked, within, within_2x, median_rel_error, hidden, short."""
+    import pandas as pd
+
+    levels = _levels(table)
+    if levels != [None]:
+        parts = [_dbh_check(table[table["sweep"] == level], within).assign(sweep=level) for level in levels]
+        out = pd.concat(parts, ignore_index=True)
+        return out[["sweep"] + [c for c in out.columns if c != "sweep"]]
+    return _dbh_check(table, within)
+
+
+def _dbh_check(table, within: float):
     import pandas as pd
 
     plants = observed_per_plant(table).set_index("case")
@@ -132,6 +173,8 @@ def observation_tables(table, wide_table) -> list[tuple[str, str, object]]:
                         "within 2 x the median spacing of a wood return), and whether the stem's bark at breast "
                         "height was observed (a DBH is checked only there)", shown)]
     by = ("family", "method") if "family" in table.columns else ("method",)
+    if _levels(table) != [None]:
+        by = ("sweep",) + by
     out.append(("inference", f"Observation and inference per {by[0]} and method: {OBSERVATION} (precision against "
                              f"the whole truth, recall over the observed wood) and {INFERENCE} (recall over the "
                              "hidden wood: what the method inferred), mean [95 % bootstrap CI] over plants",

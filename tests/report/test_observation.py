@@ -67,3 +67,22 @@ def test_dbh_checked_only_where_the_stem_was_observed():
     d = dbh_check(pd.DataFrame(rows)).set_index("method").loc["xu"]
     assert (d["checked"], d["within"], d["within_2x"], d["hidden"], d["short"]) == (2, 1, 2, 1, 1)
     assert d["median_rel_error"] == pytest.approx(np.median([0.05, 0.5]))
+
+
+def test_dbh_checked_per_level_of_a_sweep():
+    """A scan suite captures each plant at several beam spacings: the DBH check counts each level's plants against
+    that level's truth, not a mix of the levels (here the 5 cm level's estimate is off, the 1 cm level's is not)."""
+    from plantbench.report.observation import dbh_check
+
+    rows = []
+    for level, est in ((0.01, 10.5), (0.05, 14.0)):
+        for method, value in (("gt (oracle)", 10.0), ("livny", est)):
+            rows += [{**r, "sweep": level} for r in _rows("a-1", method, {OBSERVED: 0.9, BREAST: 1.0,
+                                                                         "skeleton.dbh_cm": value})]
+    d = dbh_check(pd.DataFrame(rows))
+    assert list(d.columns[:2]) == ["sweep", "method"]
+    by_level = d.set_index("sweep")
+    assert by_level.loc[0.01, "within"] == 1 and by_level.loc[0.05, "within"] == 0
+    assert by_level.loc[0.05, "median_rel_error"] == pytest.approx(0.4)
+    plants = observed_per_plant(pd.DataFrame(rows))
+    assert len(plants) == 2 and list(plants["sweep"]) == [0.01, 0.05]
