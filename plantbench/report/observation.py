@@ -204,8 +204,9 @@ _VIEW_PX = 128
 def observed_figure(captures: dict[str, Path], path: str | os.PathLike, *, view: int = 0,
                     max_cases: int = 30) -> Path | None:
     """A panel per case (``captures``: case -> its capture folder; up to ``max_cases``): the ground-truth skeleton
-    drawn over view ``view`` of its capture, each edge coloured by the share of its bark the views observed (green
-    observed, red hidden), its width the branch's projected width. None when no capture has
+    drawn over view ``view`` of its capture, each edge coloured by the share of its bark the capture observed (green
+    observed, red hidden; a scan capture's by its scan, ``scan/observed_wood.npz``, the cloud its methods read, not
+    by the few views it also renders), its width the branch's projected width. None when no capture has
     ``views/observed_wood.npz``."""
     import matplotlib
 
@@ -232,7 +233,8 @@ def observed_figure(captures: dict[str, Path], path: str | os.PathLike, *, view:
     for ax, case in zip(axes.ravel(), names):
         folder = cases[case]
         plant, _ = read_plant(folder)
-        share = read_observed(folder / "views" / OBSERVED_FILE, plant.skeleton)
+        scanned = (folder / "scan" / OBSERVED_FILE).is_file()
+        share = read_observed(folder / ("scan" if scanned else "views") / OBSERVED_FILE, plant.skeleton)
         cams, images = read_cameras(folder / "views" / "cameras.json")
         cam = cams[min(view, len(cams) - 1)]
         img = np.asarray(Image.open(folder / "views" / "images" / images[min(view, len(cams) - 1)]))
@@ -246,8 +248,8 @@ def observed_figure(captures: dict[str, Path], path: str | os.PathLike, *, view:
         order = np.argsort(share)[::-1]  # hidden (red) drawn last, over the observed
         ax.add_collection(LineCollection(np.stack([uv[e[order, 0]], uv[e[order, 1]]], 1),
                                          colors=plt.cm.RdYlGn(share[order]), linewidths=width[order]))
-        ax.set(xlim=(0, cam.width), ylim=(cam.height, 0),
-               title=f"{case}: {observed_share(plant.skeleton, share):.2f} observed")
-        ax.title.set_fontsize(8)
+        title = f"{case}: {observed_share(plant.skeleton, share):.2f} observed{' (scan)' if scanned else ''}"
+        ax.set(xlim=(0, cam.width), ylim=(cam.height, 0), title=title)
+        ax.title.set_fontsize(min(8.0, 8.0 * 34 / len(title)))  # a long case name still fits its panel
     fig.suptitle("Ground-truth skeleton over a view: bark observed (green) / hidden (red) by the capture", fontsize=9)
     return save_png(fig, path, dpi=80)
