@@ -23,7 +23,7 @@ from reference_impl.common.inputs import plant_height, split_ground
 from reference_impl.common.radii import murray_angle, wbe_murray_radii
 from reference_impl.common.roots import StemFitParams, find_roots, finish_stems, fit_stems
 from reference_impl.common.skeleton_ops import branch_orders, hermite_smooth, prune_short_tips, remove_nodes, simplify
-from reference_impl.xu.skeleton import bin_skeleton, probe_extend
+from reference_impl.xu.skeleton import bin_skeleton, join_fragments, probe_extend
 from reference_impl.xu.synthesis import (
     SynthesisResult,
     axil_angles,
@@ -83,6 +83,16 @@ class XuParams(StemFitParams):
     """When the root subgraph (the radius-graph components of the stem bases) spans less than this share of the
     height, a gap in the stem's scan would stop the skeleton there: the probing is persistent
     (:func:`reference_impl.xu.skeleton.probe_extend`) [S: docs/tuning/xu.md]."""
+    join_fragments: bool = False
+    """After probing, every radius-graph subgraph still unattached and within the probing gap of the skeleton joins at
+    its nearest attached point, the nearest first, in rounds (:func:`reference_impl.xu.skeleton.join_fragments`): on
+    a sparse scan the crown falls apart into hundreds of subgraphs (AdTree's tree13: 1243 for 7k points) and the
+    cones along the branches reach few of them; the rest were leaf points, which synthesis reaches only within the
+    density range. The scan suites set it (scan-sparse: coverage +0.12 / +0.11 and vF1 +0.011 / +0.006 at 2 / 5 cm,
+    intervals above 0); off by default: on an mvs cloud the fragments are stereo outliers as often as wood (the quick
+    suite's mvs cells: support@1% 0.165 -> 0.076) [S: docs/tuning/xu.md]."""
+    fragment_min_points: int = 3
+    """Subgraphs of fewer points stay leaf points (:attr:`join_fragments`) [S]."""
     support_distance: float = 0.1
     """d0: largest distance from a supported leaf location to its feasible node at 20 m (Table I, section 4.3)."""
     density_range: float = 0.5
@@ -254,6 +264,10 @@ def _scanned_skeleton(cloud: np.ndarray, cloud_height: np.ndarray, height: float
     z = cloud_height[in_main] if in_main.any() else np.zeros(1)
     persistent = bool(z.max() - z.min() < params.stem_gap_share * height)
     ext, attached, joined = probe_extend(cloud, graph, labels, main, in_main, persistent=persistent, **probe)
+    if params.join_fragments:
+        ext, attached, more = join_fragments(cloud, graph, labels, ext, attached, width=width, gap=gap,
+                                             min_points=params.fragment_min_points, waypoints=params.bridge_waypoints)
+        stats["fragments_joined"] = more
     if persistent:
         stats["persistent_probing"] = True
     stats["joined_subgraphs"] = joined

@@ -245,3 +245,54 @@ def probe_extend(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray, m
         joined += 1
     out = BinSkeleton(np.asarray(pos), np.asarray(par, np.int64), np.asarray(geo), point_node)
     return out, attached, joined
+
+
+def join_fragments(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray, skel: BinSkeleton,
+                   attached: np.ndarray, *, width: float, gap: float, min_points: int = 3,
+                   waypoints: bool = False) -> tuple[BinSkeleton, np.ndarray, int]:
+    """After probing: every subgraph of at least ``min_points`` points still unattached whose nearest point lies
+    within ``gap`` of an attached point joins there, the nearest first, in rounds until none is left within reach
+    (each subgraph's skeleton hangs from the node of its nearest attached point, from the point P of the subgraph
+    nearest to it). Returns the extended skeleton, ``attached`` and the number joined [S: docs/tuning/xu.md]."""
+    pos = [p for p in skel.positions]
+    par = list(skel.parents)
+    geo = list(skel.geodesic)
+    point_node = skel.point_node.copy()
+    attached = attached.copy()
+    tree = cKDTree(points)
+    sizes = np.bincount(labels)
+    joined = 0
+    while True:
+        att = np.flatnonzero(attached & (point_node >= 0))
+        free = np.flatnonzero(~attached & (sizes[labels] >= min_points))
+        if len(att) == 0 or len(free) == 0:
+            break
+        d, j = cKDTree(points[att]).query(points[free], distance_upper_bound=gap)
+        ok = np.isfinite(d)
+        if not ok.any():
+            break
+        free, d, j = free[ok], d[ok], j[ok]
+        order = np.lexsort((free, d))
+        done = set()
+        n_before = joined
+        for k in order:
+            lab = int(labels[free[k]])
+            if lab in done or attached[free[k]]:
+                continue
+            done.add(lab)
+            p_idx = int(free[k])
+            members = np.flatnonzero(labels == lab)
+            sub = bin_skeleton(points, graph, members, np.array([p_idx]), width)
+            q_node = int(point_node[att[j[k]]])
+            p_pos = points[p_idx]
+            base_geo = geo[q_node] + float(np.linalg.norm(p_pos - pos[q_node]))
+            if waypoints:
+                q_node = _step_through(points, tree, attached, members, q_node, p_pos, base_geo, pos, par, geo,
+                                       point_node)
+            _append(pos, par, geo, point_node, sub, q_node, base_geo)
+            attached[members] = True
+            joined += 1
+        if joined == n_before:
+            break
+    out = BinSkeleton(np.asarray(pos), np.asarray(par, np.int64), np.asarray(geo), point_node)
+    return out, attached, joined

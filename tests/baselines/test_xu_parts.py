@@ -6,7 +6,7 @@ from scipy.sparse import csgraph
 from reference_impl.common.graph import radius_graph
 from reference_impl.common.radii import murray_angle
 from reference_impl.xu.pipeline import adjust_branch_angles
-from reference_impl.xu.skeleton import bin_skeleton, probe_extend
+from reference_impl.xu.skeleton import bin_skeleton, join_fragments, probe_extend
 from reference_impl.xu.synthesis import (
     axil_angles,
     leaf_locations,
@@ -88,6 +88,36 @@ def test_probing_steps_through_the_returns_in_a_gap(rng):
             assert np.all(ext.geodesic[ext.parents >= 0] > ext.geodesic[ext.parents[ext.parents >= 0]])
         else:  # the straight join passes them by
             assert np.all(d > 1e-3) and not attached[-2:].any()
+
+
+def test_fragments_outside_every_probing_cone_join_nearest_first(rng):
+    """A limb seen as two pieces beside the stem, level with it (no cone along the stem points at it; a sparse scan's
+    crown left of the stem), joins the skeleton through its nearest point, the nearer piece first and the farther one
+    onto it; a piece beyond the gap, and one of fewer than ``min_points`` points, stay out."""
+    stem = _line(0, 1, 100, rng)
+    # 25 cm from the stem: a cone of 45 deg reaches it only from 25 cm below, 35 cm away, beyond the 30 cm gap
+    near_piece = np.c_[np.linspace(0.25, 0.45, 30), rng.normal(0, 1e-3, 30), np.full(30, 0.5)]
+    far_piece = np.c_[np.linspace(0.6, 0.9, 30), rng.normal(0, 1e-3, 30), np.full(30, 0.5)]  # 15 cm beyond it
+    lone = np.c_[np.linspace(-0.24, -0.22, 2), np.zeros(2), np.full(2, 0.5)]  # two returns, 22 cm left
+    away = np.c_[np.full(30, -2.0), rng.normal(0, 1e-3, 30), np.linspace(0.2, 0.5, 30)]  # 2 m off
+    pts = np.vstack([stem, near_piece, far_piece, lone, away])
+    g = radius_graph(pts, 0.05)
+    ncomp, lab = csgraph.connected_components(g, directed=False)
+    assert ncomp == 5
+    main_mask = lab == lab[0]
+    main = bin_skeleton(pts, g, np.flatnonzero(main_mask), np.array([0]), 0.05)
+    kw = dict(width=0.05, cone_deg=45, gap=0.3, max_geodesic=10.0)
+    probed, attached, joined = probe_extend(pts, g, lab, main, main_mask, **kw)
+    assert joined == 0  # the cones point up the stem
+    ext, attached, n = join_fragments(pts, g, lab, probed, attached, width=0.05, gap=0.3, min_points=3)
+    assert n == 2 and attached[:160].all() and not attached[160:].any()
+    assert (ext.parents < 0).sum() == 1 and ext.positions[:, 0].max() > 0.85
+    # the far piece hangs from the near piece's skeleton, not from the stem (0.6 m away)
+    tip = int(np.argmax(ext.positions[:, 0]))
+    node = tip
+    while ext.parents[node] >= 0 and ext.positions[ext.parents[node], 0] > 0.1:
+        node = ext.parents[node]
+    assert ext.positions[node, 0] < 0.5 and np.all(ext.geodesic[ext.parents >= 0] > -1e-9)
 
 
 def test_similarity_transform_is_exact_for_similar_triangles(rng):
