@@ -181,3 +181,19 @@ def test_breast_height_observed_reads_the_stem_edge_at_1_3_m():
     assert _breast_height_observed(stem, share, 1.3) == 0.0
     assert _breast_height_observed(stem, share, 1.0) == 1.0  # 1.0 m lies on the 2nd edge's end (the first to cross)
     assert _breast_height_observed(stem, share, 3.5) is None
+
+
+def test_observed_figure_of_a_scan_capture_colours_by_its_scan(captured, tmp_path, monkeypatch):
+    """A scan capture also renders a few views; its figure colours the true skeleton by what the scan observed (the
+    share its metric reads), not by those views."""
+    import plantbench.capture.observed as observed_module
+    from plantbench.report.observation import observed_figure
+
+    case, _ = captured
+    assert (case / "scan" / ob.OBSERVED_FILE).is_file() and (case / "views" / ob.OBSERVED_FILE).is_file()
+    read = []
+    real = observed_module.read_observed
+    monkeypatch.setattr(observed_module, "read_observed", lambda path, sk: read.append(path) or real(path, sk))
+    out = observed_figure({"case": case}, tmp_path / "observed.png")
+    assert out is not None and out.is_file()
+    assert [p.parent.name for p in read] == ["scan"]
