@@ -171,6 +171,20 @@ def _step_through(points, tree, attached, members, q_node: int, p_pos, base_geo:
     return q_node
 
 
+def _hang(points, tree, attached, members, sub: BinSkeleton, q_node: int, p_idx: int, pos: list, par: list,
+          geo: list, point_node, waypoints: bool) -> range:
+    """Join subgraph ``members`` (its skeleton ``sub``, rooted at its point ``p_idx``) below node ``q_node``: the
+    segment PQ, through the free returns in the gap with ``waypoints`` (:func:`_step_through`), then ``sub``
+    (:func:`_append`); its points become attached. Updates the lists and masks in place; returns the new nodes of
+    ``sub``."""
+    p_pos = points[p_idx]
+    base_geo = geo[q_node] + float(np.linalg.norm(p_pos - pos[q_node]))
+    if waypoints:
+        q_node = _step_through(points, tree, attached, members, q_node, p_pos, base_geo, pos, par, geo, point_node)
+    attached[members] = True
+    return _append(pos, par, geo, point_node, sub, q_node, base_geo)
+
+
 def probe_extend(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray, main: BinSkeleton,
                  attached: np.ndarray, *, width: float, cone_deg: float, gap: float, max_geodesic: float,
                  min_nodes: int = 2, tangent_nodes: int = 3, persistent: bool = False, large_share: float = 0.1,
@@ -236,12 +250,8 @@ def probe_extend(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray, m
                 break
         if q_node < 0:
             continue
-        base_geo = geo[q_node] + float(np.linalg.norm(p_pos - pos[q_node]))
-        if waypoints:
-            q_node = _step_through(points, tree, attached, members, q_node, p_pos, base_geo, pos, par, geo,
-                                   point_node)
-        queue.extend(_append(pos, par, geo, point_node, sub, q_node, base_geo))
-        attached[members] = True
+        queue.extend(_hang(points, tree, attached, members, sub, q_node, p_idx, pos, par, geo, point_node,
+                           waypoints))
         joined += 1
     out = BinSkeleton(np.asarray(pos), np.asarray(par, np.int64), np.asarray(geo), point_node)
     return out, attached, joined
@@ -260,9 +270,11 @@ def join_fragments(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray,
     point_node = skel.point_node.copy()
     attached = attached.copy()
     tree = cKDTree(points)
-    sizes = np.bincount(labels)
+    by_label = np.argsort(labels, kind="stable")  # each subgraph's points, found once
+    bounds = np.searchsorted(labels[by_label], np.arange(labels.max() + 2))
+    sizes = np.diff(bounds)
     joined = 0
-    while True:
+    while True:  # a round joins every subgraph within reach of what was attached when it began
         att = np.flatnonzero(attached & (point_node >= 0))
         free = np.flatnonzero(~attached & (sizes[labels] >= min_points))
         if len(att) == 0 or len(free) == 0:
@@ -272,27 +284,15 @@ def join_fragments(points: np.ndarray, graph: sp.csr_matrix, labels: np.ndarray,
         if not ok.any():
             break
         free, d, j = free[ok], d[ok], j[ok]
-        order = np.lexsort((free, d))
-        done = set()
-        n_before = joined
-        for k in order:
-            lab = int(labels[free[k]])
-            if lab in done or attached[free[k]]:
-                continue
-            done.add(lab)
+        for k in np.lexsort((free, d)):  # nearest first; a subgraph's farther points find it attached
             p_idx = int(free[k])
-            members = np.flatnonzero(labels == lab)
+            if attached[p_idx]:
+                continue
+            lab = labels[p_idx]
+            members = by_label[bounds[lab]:bounds[lab + 1]]
             sub = bin_skeleton(points, graph, members, np.array([p_idx]), width)
-            q_node = int(point_node[att[j[k]]])
-            p_pos = points[p_idx]
-            base_geo = geo[q_node] + float(np.linalg.norm(p_pos - pos[q_node]))
-            if waypoints:
-                q_node = _step_through(points, tree, attached, members, q_node, p_pos, base_geo, pos, par, geo,
-                                       point_node)
-            _append(pos, par, geo, point_node, sub, q_node, base_geo)
-            attached[members] = True
+            _hang(points, tree, attached, members, sub, int(point_node[att[j[k]]]), p_idx, pos, par, geo,
+                  point_node, waypoints)
             joined += 1
-        if joined == n_before:
-            break
     out = BinSkeleton(np.asarray(pos), np.asarray(par, np.int64), np.asarray(geo), point_node)
     return out, attached, joined
