@@ -36,7 +36,7 @@ def observed_per_plant(table):
     if ok.empty:
         return pd.DataFrame(columns=["case", "species", "family", OBSERVED, BREAST])
     keys = [c for c in ("case", "species", "family") if c in ok.columns]
-    if _levels(table) != [None]:
+    if _levels(table):
         keys = ["sweep"] + keys
     wide = ok.pivot_table(index=keys, columns="metric", values="value", aggfunc="median").reset_index()
     for m in (OBSERVED, BREAST):
@@ -46,21 +46,15 @@ def observed_per_plant(table):
 
 
 def oracle_ratio(table, oracle_table=None, *, metric: str = OBSERVATION, threshold: float = WELL_OBSERVED):
-    """:func:`_oracle_ratio`, per level of a run with a sweep (a ``sweep`` column first)."""
-    import pandas as pd
+    """:func:`_oracle_ratio`, per level of a run with a sweep (:func:`_per_level`)."""
 
-    levels = _levels(table)
-    if levels == [None]:
-        return _oracle_ratio(table, oracle_table, metric=metric, threshold=threshold)
-    parts = []
-    for level in levels:
+    def at(sub, level):
         other = oracle_table
-        if other is not None and "sweep" in other.columns:
+        if other is not None and level is not None and "sweep" in other.columns:
             other = other[other["sweep"] == level]
-        parts.append(_oracle_ratio(table[table["sweep"] == level], other, metric=metric,
-                                   threshold=threshold).assign(sweep=level))
-    out = pd.concat(parts, ignore_index=True)
-    return out[["sweep"] + [c for c in out.columns if c != "sweep"]]
+        return _oracle_ratio(sub, other, metric=metric, threshold=threshold)
+
+    return _per_level(table, at)
 
 
 def _oracle_ratio(table, oracle_table=None, *, metric: str = OBSERVATION, threshold: float = WELL_OBSERVED):
@@ -103,12 +97,25 @@ def _oracle_ratio(table, oracle_table=None, *, metric: str = OBSERVATION, thresh
 
 
 def _levels(table) -> list:
-    """The run's sweep levels when it has more than one (a scan suite's beam spacings), else [None]: a plant is a
-    case at one level, and a table over plants is made per level."""
-    if "sweep" not in table.columns or table["sweep"].notna().sum() == 0:
-        return [None]
+    """The run's sweep levels when it has more than one (a scan suite's beam spacings), else []: a plant is a case at
+    one level, and a table over plants is made per level."""
+    if "sweep" not in table.columns:
+        return []
     levels = list(dict.fromkeys(table["sweep"].dropna()))
-    return levels if len(levels) > 1 else [None]
+    return levels if len(levels) > 1 else []
+
+
+def _per_level(table, make):
+    """``make(table, None)`` for a run without a sweep; else ``make(rows of one level, level)`` for each level,
+    concatenated with a ``sweep`` column first."""
+    import pandas as pd
+
+    levels = _levels(table)
+    if not levels:
+        return make(table, None)
+    out = pd.concat([make(table[table["sweep"] == level], level).assign(sweep=level) for level in levels],
+                    ignore_index=True)
+    return out[["sweep"] + [c for c in out.columns if c != "sweep"]]
 
 
 def dbh_check(table, *, within: float = 0.10):
@@ -117,14 +124,7 @@ def dbh_check(table, *, within: float = 0.10):
     because the stem was hidden there or is shorter than breast height (a failed cell counts as checked and not
     within). A run with a sweep (several captures of each plant) is checked per level, with a ``sweep`` column first.
     Returns a DataFrame: [sweep,] method, checked, within, within_2x, median_rel_error, hidden, short."""
-    import pandas as pd
-
-    levels = _levels(table)
-    if levels != [None]:
-        parts = [_dbh_check(table[table["sweep"] == level], within).assign(sweep=level) for level in levels]
-        out = pd.concat(parts, ignore_index=True)
-        return out[["sweep"] + [c for c in out.columns if c != "sweep"]]
-    return _dbh_check(table, within)
+    return _per_level(table, lambda sub, _: _dbh_check(sub, within))
 
 
 def _dbh_check(table, within: float):
@@ -173,7 +173,7 @@ def observation_tables(table, wide_table) -> list[tuple[str, str, object]]:
                         "within 2 x the median spacing of a wood return), and whether the stem's bark at breast "
                         "height was observed (a DBH is checked only there)", shown)]
     by = ("family", "method") if "family" in table.columns else ("method",)
-    if _levels(table) != [None]:
+    if _levels(table):
         by = ("sweep",) + by
     out.append(("inference", f"Observation and inference per {by[0]} and method: {OBSERVATION} (precision against "
                              f"the whole truth, recall over the observed wood) and {INFERENCE} (recall over the "
