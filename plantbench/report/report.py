@@ -31,7 +31,7 @@ STUDY_METRICS = ("stava.S_T", "mesh_to_surface.D_cm", "reprojection.error", "ske
 
 FORMATS = ("md", "latex", "csv", "html")
 
-PAIRED_METRICS = (*HEADLINE, "skeleton.vf1_observed@1%", "skeleton.vrecall_hidden@1%", "stava.S_T",
+PAIRED_METRICS = (*HEADLINE, "skeleton.vrecall_hidden@1%", "stava.S_T",
                   "mesh_to_surface.D_cm", "reprojection.iou", "leaves.accuracy")
 """Metrics of the paired-comparison table: the headline, observation and inference (:mod:`.observation`), then the
 paper's S_T and D and the older image and leaf columns (every metric's values are in results.csv)."""

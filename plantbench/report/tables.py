@@ -208,6 +208,24 @@ def _compact(mean: float, lo: float, hi: float) -> str:
     return text
 
 
+def _column_blocks(rows: list[list[str]], width: int) -> list[list[int]]:
+    """Column indices in blocks whose lines fit ``width`` characters, each block led by the first (label) column."""
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    blocks: list[list[int]] = [[0]]
+    for i in range(1, len(widths)):
+        if len(blocks[-1]) > 1 and sum(widths[j] + 2 for j in blocks[-1]) + widths[i] > width:
+            blocks.append([0])
+        blocks[-1].append(i)
+    return blocks
+
+
+def _aligned(rows: list[list[str]]) -> list[str]:
+    """Rows as lines: the first column left-aligned, the others right-aligned, two spaces apart."""
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return ["  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))).rstrip()
+            for r in rows]
+
+
 def summary_lines(table, metrics: tuple[str, ...] = HEADLINE, *, oracles: tuple[str, ...] = ()) -> list[str]:
     """The run summary as plain text: methods down the side, the headline metrics across (short labels), cells
     'mean±half-width of the 95 % bootstrap interval over cases', a last column counting failed cells. Plain
@@ -227,15 +245,12 @@ def summary_lines(table, metrics: tuple[str, ...] = HEADLINE, *, oracles: tuple[
     rows = [[m + (" *" if m in oracles else ""),
              *(_compact(*idx.loc[(m_, m), ["mean", "lo", "hi"]]) if (m_, m) in idx.index else "-" for m_ in present)]
             for m in methods]
-    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
-
-    def line(cols: list[str]) -> str:
-        return "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(cols, widths))).rstrip()
-
     cases = table["case"].nunique()
     arrows = {("↑" if (metric_info(m) and metric_info(m).higher_is_better) else "↓") for m in present}
     out = [f"mean±half-width of the 95 % bootstrap interval over {cases} case{'s' * (cases != 1)}"
-           + (" (higher is better)" if arrows == {"↑"} else ""), line(header), *(line(r) for r in rows)]
+           + (" (higher is better)" if arrows == {"↑"} else "")]
+    for block in _column_blocks([header, *rows], width=80):  # columns wider than a terminal: stacked blocks
+        out += ([""] if len(out) > 1 else []) + _aligned([[r[i] for i in block] for r in [header, *rows]])
     bad = [f"{m} {int(failed[m])}" for m in methods if failed.get(m, 0)]
     out.append("failed cells: " + (", ".join(bad) if bad else "none"))
     if oracles:
