@@ -175,8 +175,7 @@ def test_family_study_ranks_methods_per_family(tmp_path, rng):
 def test_run_summary_is_plain_and_fits_80_columns(rng):
     """The quick suite's ten method columns as rows and the headline across: no box-drawing character, no value cut
     to an ellipsis, every line within 80 columns; means and half-widths as aggregate computes them."""
-    from plantbench.metrics.info import HEADLINE
-    from plantbench.metrics.info import short_label
+    from plantbench.metrics.info import HEADLINE, short_label
     from plantbench.report.tables import summary_lines
 
     methods = ["gt", "prior", "mvs", "livny", "xu", "guo", "livny@oracle", "xu@oracle", "guo@oracle"]
