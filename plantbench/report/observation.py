@@ -201,13 +201,14 @@ _VIEW_PX = 128
 """The view behind a panel is shown at about this many pixels across."""
 
 
-def observed_figure(captures: dict[str, Path], path: str | os.PathLike, *, view: int = 0,
+def observed_figure(captures: dict[str, Path], path: str | os.PathLike, *, source: str = "views", view: int = 0,
                     max_cases: int = 30) -> Path | None:
     """A panel per case (``captures``: case -> its capture folder; up to ``max_cases``): the ground-truth skeleton
     drawn over view ``view`` of its capture, each edge coloured by the share of its bark the capture observed (green
-    observed, red hidden; a scan capture's by its scan, ``scan/observed_wood.npz``, the cloud its methods read, not
-    by the few views it also renders), its width the branch's projected width. None when no capture has
-    ``views/observed_wood.npz``."""
+    observed, red hidden), its width the branch's projected width. ``source`` is the suite's (run.json's
+    ``config.source``): 'views' colours by ``views/observed_wood.npz``, 'scan' by ``scan/observed_wood.npz``, the
+    file the suite's metrics read (a multiview capture also scans, a scan capture also renders a few views). None
+    when no capture has the views and that file."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -220,7 +221,10 @@ def observed_figure(captures: dict[str, Path], path: str | os.PathLike, *, view:
     from plantbench.io.plantio import read_plant
     from plantbench.report.figures import save_png
 
-    cases = {case: Path(folder) for case, folder in captures.items() if (Path(folder) / "views" / OBSERVED_FILE).is_file()}
+    if source not in ("views", "scan"):
+        raise ValueError(f"source must be 'views' or 'scan', got {source!r}")
+    cases = {case: Path(folder) for case, folder in captures.items()
+             if (Path(folder) / "views" / "cameras.json").is_file() and (Path(folder) / source / OBSERVED_FILE).is_file()}
     if not cases:
         return None
     names = sorted(cases)[:max_cases]
@@ -233,8 +237,7 @@ def observed_figure(captures: dict[str, Path], path: str | os.PathLike, *, view:
     for ax, case in zip(axes.ravel(), names):
         folder = cases[case]
         plant, _ = read_plant(folder)
-        scanned = (folder / "scan" / OBSERVED_FILE).is_file()
-        share = read_observed(folder / ("scan" if scanned else "views") / OBSERVED_FILE, plant.skeleton)
+        share = read_observed(folder / source / OBSERVED_FILE, plant.skeleton)
         cams, images = read_cameras(folder / "views" / "cameras.json")
         cam = cams[min(view, len(cams) - 1)]
         img = np.asarray(Image.open(folder / "views" / "images" / images[min(view, len(cams) - 1)]))
@@ -248,7 +251,7 @@ def observed_figure(captures: dict[str, Path], path: str | os.PathLike, *, view:
         order = np.argsort(share)[::-1]  # hidden (red) drawn last, over the observed
         ax.add_collection(LineCollection(np.stack([uv[e[order, 0]], uv[e[order, 1]]], 1),
                                          colors=plt.cm.RdYlGn(share[order]), linewidths=width[order]))
-        title = f"{case}: {observed_share(plant.skeleton, share):.2f} observed{' (scan)' if scanned else ''}"
+        title = f"{case}: {observed_share(plant.skeleton, share):.2f} observed{' (scan)' if source == 'scan' else ''}"
         ax.set(xlim=(0, cam.width), ylim=(cam.height, 0), title=title)
         ax.title.set_fontsize(min(8.0, 8.0 * 34 / len(title)))  # a long case name still fits its panel
     fig.suptitle("Ground-truth skeleton over a view: bark observed (green) / hidden (red) by the capture", fontsize=9)

@@ -509,7 +509,8 @@ def write_report(run_dir: str | os.PathLike, formats: tuple[str, ...] = FORMATS,
     from plantbench.report.observation import observed_figure
 
     captures = {c["case"]: c["capture"] for c in _cells(run_dir)}
-    for extra in (observed_figure(captures, out / "figures" / "observed.png"),
+    source = (read_run_meta(run_dir).get("config") or {}).get("source") or "views"  # the file its metrics read
+    for extra in (observed_figure(captures, out / "figures" / "observed.png", source=source),
                   distance_figure(run_dir, out / "figures" / "distances.png"),
                   leaf_figure(run_dir, out / "figures" / "leaves.png"),
                   timeline_figure(run_dir, out / "figures" / "timeline.png")):

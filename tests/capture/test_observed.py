@@ -183,9 +183,9 @@ def test_breast_height_observed_reads_the_stem_edge_at_1_3_m():
     assert _breast_height_observed(stem, share, 3.5) is None
 
 
-def test_observed_figure_of_a_scan_capture_colours_by_its_scan(captured, tmp_path, monkeypatch):
-    """A scan capture also renders a few views; its figure colours the true skeleton by what the scan observed (the
-    share its metric reads), not by those views."""
+def test_observed_figure_colours_by_the_suites_source(captured, tmp_path, monkeypatch):
+    """A capture with views and a scan: the figure of a scan suite colours the true skeleton by what the scan
+    observed, that of a views suite by what the views observed (the file each suite's metrics read)."""
     import plantbench.capture.observed as observed_module
     from plantbench.report.observation import observed_figure
 
@@ -194,6 +194,11 @@ def test_observed_figure_of_a_scan_capture_colours_by_its_scan(captured, tmp_pat
     read = []
     real = observed_module.read_observed
     monkeypatch.setattr(observed_module, "read_observed", lambda path, sk: read.append(path) or real(path, sk))
-    out = observed_figure({"case": case}, tmp_path / "observed.png")
+    out = observed_figure({"case": case}, tmp_path / "observed.png", source="scan")
     assert out is not None and out.is_file()
     assert [p.parent.name for p in read] == ["scan"]
+    read.clear()
+    assert observed_figure({"case": case}, tmp_path / "views.png") is not None
+    assert [p.parent.name for p in read] == ["views"]
+    with pytest.raises(ValueError, match="source"):
+        observed_figure({"case": case}, tmp_path / "bad.png", source="lidar")
