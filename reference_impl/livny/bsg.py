@@ -3,8 +3,9 @@
 Steps and where each parameter comes from ([L] Livny 2010 (docs/design.md, Shipped methods), [G] the Groot
 re-implementation, [A] AdTree, [S] our choice; every length is scaled by the plant's size):
 
-1. ground removal (reference_impl.common.ground) [S]; voxel downsampling at 0.75 % of the plant height [S, within
-   0.5-1 % of the height; docs/tuning/guo.md], coarsened only when more than 150k voxels remain (speed) [S];
+1. ground removal (reference_impl.common.ground) [S]; voxel downsampling at 0.5 % of the plant height [S, within
+   0.5-1 % of the height; docs/tuning/guo.md], at least 0.6 median point spacings [S], coarsened only when more than
+   150k voxels remain (speed) [S];
 2. symmetrised 10-NN graph without edges longer than 3 x the median 1-NN spacing; components under 20 voxels
    dropped, the others bridged by their shortest edges [S];
 3. roots: the lowest vertex of each central cluster of the bottom 2 % of the height, per separate plant [A, L:
@@ -17,10 +18,12 @@ re-implementation, [A] AdTree, [S] our choice; every length is scaled by the pla
    positions by sparse least squares, edges aligned with the field plus a data term [G], no vertex farther from
    the cloud than its radius plus half a voxel [S]; resampling by merging the
    vertices sharing a one-voxel cell and rebuilding the shortest-path tree [S];
-6. simplification until stable: subtree-ratio pruning 0.02 [A: 0.019] plus twigs under 3 voxels [S], sibling merging
-   below 25 deg with length ratio in [1/2, 2] [A], removal of degree-2 vertices within the local radius of their
-   neighbours' line [A];
-7. pipe-model radii r = r_root (w / w_root)^(1/2) [L, standard], r_root from a trunk cylinder fit [A];
+6. simplification until stable: subtree-ratio pruning 0.02 [A: 0.019] plus twigs under 3 voxels and twigs whose
+   tip lies within 3 radii of another branch's axis (bark ridges) [S],
+   sibling merging below 25 deg with length ratio in [1/2, 2] [A], removal of degree-2 vertices within the local
+   radius of their neighbours' line [A];
+7. pipe-model radii r = r_root (w / w_root)^(1/2) [L, standard], r_root from a trunk cylinder fit [A] at the scale
+   of a 0.75 % voxel [S];
 8. leaves in the lobes around terminal subtrees: crown points the branches do not explain, one Bezier leaf per
    leaf-sized cell, hanging from the nearest node of a terminal subtree (one supporting at most 5 % of the plant's
    branch length) [L: lobes; S: the cell rule and the 5 %].
@@ -79,9 +82,19 @@ __all__ = ["LivnyParams", "LivnyResult", "reconstruct_livny", "orientation_field
 class LivnyParams(StemFitParams):
     """Parameters of the Livny-style baseline (source in brackets, see the module docstring)."""
 
-    voxel_fraction: float = 0.0075
+    voxel_fraction: float = 0.005
     """Voxel edge as a fraction of the plant's height (Livny et al. work on the points themselves) [S, within
-    0.5-1 % of the height; docs/tuning/guo.md]."""
+    0.5-1 % of the height; docs/tuning/guo.md, livny voxel: 0.75 % until the 1024 px clouds]."""
+    min_voxel_spacings: float = 0.6
+    """The voxel is at least this many median point spacings of the cloud: below the spacing a voxel holds one point
+    and merges nothing, and the lengths counted in voxels (twigs, forks, offsets) fall under what the cloud can show
+    (the 5 cm scans of the small plants, 1.0-1.3 % of the height apart; the mvs clouds are 0.09-0.43 %) [S:
+    docs/tuning/guo.md, livny voxel]. 0: the height rule alone."""
+    stem_voxel_fraction: float = 0.0075
+    """The stem fit's scale (its section offset, and twice it the fallback radius) is the larger of the voxel and
+    this fraction of the height: a finer voxel for the crown need not shrink the stem's fit on a sparse scan (tree33
+    of the real suite: DBH 37.9 cm at the 0.75 % voxel, 20.3 at 0.5 %, 38.1 at 0.5 % with this at 0.0075) [S:
+    docs/tuning/guo.md, livny voxel]. 0: the voxel."""
     max_vertices: int = 150_000
     """When more voxels than this remain, the voxel grows (by the square root of the excess: scans sample surfaces)
     until they fit [S: keeps a 300k-point plant under the 60 s target of issue 7]."""
@@ -124,6 +137,11 @@ class LivnyParams(StemFitParams):
     min_twig_voxels: float = 3.0
     """Terminal twigs shorter than this many voxels hanging from a junction are noise: pruned with the ratio rule
     [S: below the cloud's resolution, the 0.02 ratio alone keeps such stubs near the tips]."""
+    min_twig_radii: float = 3.0
+    """A terminal twig whose tip lies within this many radii of another branch's axis is a ridge of that branch's
+    bark, not a branch: a voxel fine enough for a twig's cloud leaves a thick one-sided stem's surface as stubs
+    along it (the one-sided test tree: 40 tips for the truth's 17 at the 0.5 % voxel, 17 with the rule) [S:
+    docs/tuning/guo.md, livny voxel]. 0: none."""
     merge_fork_voxels: float = 2.0
     """Forks joined by a chain shorter than this many voxels become one fork, in each simplification round (a noisy
     cloud splits one fork into several) [S: measured, docs/tuning/xu.md]. 0: none."""
@@ -248,6 +266,8 @@ def _voxel_cloud(plant: np.ndarray, height: float, params: LivnyParams) -> tuple
     """Step 1's downsampling: the voxel centroids, their point counts (as float masses) and the voxel edge, grown
     until at most ``max_vertices`` voxels remain."""
     voxel = params.voxel_fraction * height
+    if params.min_voxel_spacings > 0:
+        voxel = max(voxel, params.min_voxel_spacings * median_spacing(plant))
     cloud, _, mass = voxel_downsample(plant, voxel)
     for _ in range(8):  # bounded: each pass grows the voxel by at least 10 %
         if len(cloud) <= params.max_vertices:
@@ -334,8 +354,9 @@ def _pipe_radii(pos: np.ndarray, parents: np.ndarray, plant: np.ndarray, *, voxe
     w = subtree_lengths(pos, parents) + voxel
     field = orientation_field(pos, parents, w)
     min_r = params.min_radius_fraction * height
-    trunk = fit_stems(plant, pos, parents, field[parents < 0], w, params, height=height, offset=voxel,
-                      fallback=2 * voxel)
+    stem = max(voxel, params.stem_voxel_fraction * height)
+    trunk = fit_stems(plant, pos, parents, field[parents < 0], w, params, height=height, offset=stem,
+                      fallback=2 * stem)
     radii = pipe_model_radii(w, parents, trunk, exponent=params.radius_exponent, min_radius=min_r)
     return w, field, trunk, radii
 
@@ -361,10 +382,15 @@ def _contract(cloud: np.ndarray, mass: np.ndarray, parents: np.ndarray, plant: n
 def _simplify(pos: np.ndarray, parents: np.ndarray, plant: np.ndarray, *, voxel: float, height: float,
               params: LivnyParams) -> tuple[np.ndarray, np.ndarray]:
     """Step 6 until stable: subtree-ratio pruning with short twigs, sibling merging, degree-2 removal."""
+    radii = None
     for _ in range(params.simplify_rounds):
         n_before = len(pos)
         keep = prune_by_ratio(pos, parents, params.prune_ratio)
         keep &= prune_short_tips(pos, parents, params.min_twig_voxels * voxel, rounds=1)
+        if params.min_twig_radii > 0:
+            if radii is None:
+                radii = _pipe_radii(pos, parents, plant, voxel=voxel, height=height, params=params)[3]
+            keep &= _prune_ridges(pos, parents, radii, params.min_twig_radii, 0.5 * voxel)
         if params.merge_fork_voxels > 0:
             keep &= merge_close_forks(pos, parents, params.merge_fork_voxels * voxel, rounds=1)
         parents, _ = remove_nodes(parents, keep)
@@ -374,10 +400,45 @@ def _simplify(pos: np.ndarray, parents: np.ndarray, plant: np.ndarray, *, voxel:
                                          length_ratio=params.sibling_length_ratio)
         _, _, _, radii = _pipe_radii(pos, parents, plant, voxel=voxel, height=height, params=params)
         alive, parents = remove_degree2(pos, parents, radii)
-        pos = pos[alive]
+        pos, radii = pos[alive], radii[alive]
         if len(pos) == n_before:
             break
     return pos, parents
+
+
+def _prune_ridges(pos: np.ndarray, parents: np.ndarray, radii: np.ndarray, factor: float, step: float
+                  ) -> np.ndarray:
+    """(n,) keep mask without the terminal chains (tip up to the first junction, exclusive) whose tip lies within
+    ``factor`` radii of another chain's axis: a ridge of that branch's bark, not a branch of its own. ``step``:
+    the spacing of the axis samples."""
+    par = np.asarray(parents, np.int64)
+    n = len(par)
+    children = np.bincount(par[par >= 0], minlength=n)
+    chain_of = np.full(n, -1)
+    tips = np.flatnonzero(children == 0)
+    for c, tip in enumerate(tips):
+        node = tip
+        chain_of[node] = c
+        while par[node] >= 0 and children[par[node]] == 1:
+            node = par[node]
+            chain_of[node] = c
+        if par[node] < 0:  # a lone stem: never a ridge
+            chain_of[chain_of == c] = -1
+    samples, owner, rad = sample_edges(pos, par, radii, step)
+    tree = cKDTree(samples)
+    k = min(64, len(samples))
+    d, j = tree.query(pos[tips], k=k)
+    d, j = d.reshape(len(tips), k), j.reshape(len(tips), k)
+    keep = np.ones(n, bool)
+    for c, tip in enumerate(tips):
+        if chain_of[tip] < 0:
+            continue
+        other = chain_of[owner[j[c]]] != c
+        if other.any():
+            first = np.argmax(other)
+            if d[c, first] < factor * rad[j[c, first]]:
+                keep[chain_of == c] = False
+    return keep
 
 
 def _lobe_leaves(plant: np.ndarray, skeleton: Skeleton, *, voxel: float, height: float, params: LivnyParams
