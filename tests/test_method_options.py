@@ -89,7 +89,7 @@ def test_reconstruct_passes_options_checked_before_the_method_runs(cloud, tmp_pa
     bad = run("bad", "voxel_fractoin=0.02")
     assert bad.returncode == 2 and "did you mean 'voxel_fraction'" in bad.stderr
     assert not (tmp_path / "bad").exists()
-    for out, options in (("default", ()), ("same", ("voxel_fraction=0.0075",)), ("coarse", ("voxel_fraction=0.03",))):
+    for out, options in (("default", ()), ("same", ("voxel_fraction=0.005",)), ("coarse", ("voxel_fraction=0.03",))):
         res = run(out, *options)
         assert res.returncode == 0, res.stderr
     skeleton = {k: (tmp_path / k / "skeleton.ply").read_bytes() for k in ("default", "same", "coarse")}
