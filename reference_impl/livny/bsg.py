@@ -46,6 +46,7 @@ from scipy.spatial import cKDTree
 from plantbench.errors import InputError
 from plantbench.geometry.vectors import levels, unit
 from plantbench.plant import Leaf, Skeleton, TriMesh
+from plantbench.skeletons import branch_chains
 from reference_impl.common.geometry import bezier_leaves, branch_mesh, leaf_frames
 from reference_impl.common.graph import (
     bridge_components,
@@ -410,34 +411,25 @@ def _prune_ridges(pos: np.ndarray, parents: np.ndarray, radii: np.ndarray, facto
                   ) -> np.ndarray:
     """(n,) keep mask without the terminal chains (tip up to the first junction, exclusive) whose tip lies within
     ``factor`` radii of another chain's axis: a ridge of that branch's bark, not a branch of its own. ``step``:
-    the spacing of the axis samples."""
-    par = np.asarray(parents, np.int64)
-    n = len(par)
-    children = np.bincount(par[par >= 0], minlength=n)
-    chain_of = np.full(n, -1)
-    tips = np.flatnonzero(children == 0)
-    for c, tip in enumerate(tips):
-        node = tip
-        chain_of[node] = c
-        while par[node] >= 0 and children[par[node]] == 1:
-            node = par[node]
-            chain_of[node] = c
-        if par[node] < 0:  # a lone stem: never a ridge
-            chain_of[chain_of == c] = -1
-    samples, owner, rad = sample_edges(pos, par, radii, step)
-    tree = cKDTree(samples)
+    the spacing of the axis samples. A lone stem (a root's chain ending in a tip) stays."""
+    skeleton = Skeleton(pos, radii, parents)
+    children = skeleton.children_counts()
+    twigs = [c[1:] for c in branch_chains(skeleton) if children[c[-1]] == 0 and children[c[0]] >= 2]
+    keep = np.ones(len(pos), bool)
+    if not twigs:
+        return keep
+    chain_of = np.full(len(pos), -1)
+    for i, twig in enumerate(twigs):
+        chain_of[twig] = i
+    samples, owner, rad = sample_edges(pos, parents, radii, step)
     k = min(64, len(samples))
-    d, j = tree.query(pos[tips], k=k)
-    d, j = d.reshape(len(tips), k), j.reshape(len(tips), k)
-    keep = np.ones(n, bool)
-    for c, tip in enumerate(tips):
-        if chain_of[tip] < 0:
-            continue
-        other = chain_of[owner[j[c]]] != c
-        if other.any():
-            first = np.argmax(other)
-            if d[c, first] < factor * rad[j[c, first]]:
-                keep[chain_of == c] = False
+    d, j = cKDTree(samples).query(pos[[twig[-1] for twig in twigs]], k=k)
+    d, j = d.reshape(len(twigs), k), j.reshape(len(twigs), k)
+    other = chain_of[owner[j]] != np.arange(len(twigs))[:, None]  # samples of another chain's axis
+    rows, first = np.arange(len(twigs)), np.argmax(other, axis=1)
+    ridge = other[rows, first] & (d[rows, first] < factor * rad[j[rows, first]])
+    for i in np.flatnonzero(ridge):
+        keep[twigs[i]] = False
     return keep
 
 
