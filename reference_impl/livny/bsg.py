@@ -107,6 +107,12 @@ class LivnyParams(StemFitParams):
     """Components of the kNN graph with fewer voxels than this are dropped before they are bridged: a scrap of a sparse
     scan (a few returns from a twig, a leaf, a stray) that bridging would hang from the tree by a straight edge
     through the air [S: measured on the real suite and the multiview mvs clouds, docs/tuning/xu.md]. 0: none."""
+    bridge_scraps: bool = False
+    """The scraps (components under ``min_component_voxels``) are bridged to the tree after the large components are
+    joined, instead of dropped: on a sparse scan they are returns from twigs and thinly scanned limbs, while the
+    large components' own bridges stay those of the scraps' absence (a trunk crosses a gap in the scan straight, not
+    along a low limb's scraps). For scans; off for clouds from photographs, whose scraps are stereo outliers as often as
+    wood [S: docs/tuning/xu.md, "livny on scans: the scraps bridged in"]."""
     bridge_support: float = 1.0
     """A subtree hung from the shortest-path tree by a bridge (an edge the kNN graph does not have) is dropped when the
     bridge is longer than this times the subtree's own length: a fragment smaller than the gap it would be drawn
@@ -281,7 +287,8 @@ def _voxel_cloud(plant: np.ndarray, height: float, params: LivnyParams) -> tuple
 def _shortest_path_forest(cloud: np.ndarray, ground: Ground, height: float, voxel: float, params: LivnyParams
                           ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Steps 2-4: the kNN graph, the roots (found on the whole cloud), the scraps dropped (components under
-    ``min_component_voxels`` other than the roots'), the rest bridged, the shortest-path tree from the roots and the
+    ``min_component_voxels`` other than the roots'; with ``bridge_scraps`` bridged in after the rest is joined), the
+    rest bridged, the shortest-path tree from the roots and the
     subtrees hung by long bridges dropped (:func:`_unbridged`). Returns ``keep`` (n,) (the cloud's vertices in the
     tree), the parents over ``cloud[keep]`` and statistics."""
     n = len(cloud)
@@ -298,7 +305,15 @@ def _shortest_path_forest(cloud: np.ndarray, ground: Ground, height: float, voxe
         if not keep.all():
             index = np.cumsum(keep) - 1
             graph, nbridges = bridge_components(cloud[keep], knn[keep][:, keep].tocsr())
-            roots = index[roots]
+            if params.bridge_scraps:  # the large components joined first, then the scraps bridged to them
+                kept0 = np.flatnonzero(keep)
+                g = graph.tocoo()
+                big = sp.csr_matrix((g.data, (kept0[g.row], kept0[g.col])), shape=(n, n))
+                graph, extra = bridge_components(cloud, knn.maximum(big).tocsr())
+                nbridges += extra
+                keep = np.ones(n, bool)
+            else:
+                roots = index[roots]
     kept = np.flatnonzero(keep)
     _, parents, _ = shortest_path_tree(graph, roots)
     if params.bridge_support > 0:

@@ -127,3 +127,53 @@ def test_stem_radii_keeps_the_candidate_circle_on_the_bark():
         assert abs(stem_radii(points, root, axes, **kw)[0] - 0.3) < 0.03
     # no candidate fits (no points near the root): the fallback
     assert stem_radii(points + [5.0, 0, 0], root, [up], **kw)[0] == 0.01
+
+
+def _trunk_gap_and_limb_scraps(rng):
+    """tree33's case: a trunk seen sparsely from 0 to 1.5 m (a ring of 4 bark points every 4 cm, under 5 % of the
+    scan: the stem base of the plant above), nothing up to 2.2 m, then on up to 4 m (a ring of 8 every 2 cm) inside a
+    crown disc (z 2.4-4 m, x -1 to 2 m); under the crown's right edge a low limb seen as scraps: 3-point clusters about
+    0.25 m apart from the trunk's top out to x = 2 m and up to the crown (each too small to count, and nearer its
+    neighbours than the trunk's two parts are to each other)."""
+    zl, zu = np.repeat(np.arange(0.0, 1.5, 0.04), 4), np.repeat(np.arange(2.2, 4.0, 0.02), 8)
+    al = np.tile(np.linspace(0, 2 * np.pi, 4, endpoint=False), len(zl) // 4)
+    au = np.tile(np.linspace(0, 2 * np.pi, 8, endpoint=False), len(zu) // 8)
+    trunk = np.c_[0.05 * np.cos(np.r_[al, au]), 0.05 * np.sin(np.r_[al, au]), np.r_[zl, zu]]
+    crown = np.c_[rng.uniform(-1.0, 2.0, 3000), rng.normal(0, 0.05, 3000), rng.uniform(2.4, 4.0, 3000)]
+    steps = np.linspace(0.0, 1.0, 8)[1:]
+    centres = np.c_[0.3 + 1.7 * steps, np.zeros(7), 1.5 + 0.75 * steps ** 3]
+    scraps = np.concatenate([c + rng.normal(0, 0.01, (3, 3)) for c in centres])
+    return np.concatenate([trunk, crown, scraps]), scraps
+
+
+def _trunk_path_x(bridge_scraps: bool, min_component_voxels: int, rng):
+    """Largest |x| on the tree's path from the trunk's top (the kept vertex nearest (0, 0, 3.9)) down to its root,
+    and how many of the scraps' points lie within 5 cm of a kept vertex."""
+    from reference_impl.common.ground import Ground
+    from reference_impl.livny.bsg import LivnyParams, _shortest_path_forest
+
+    points, scraps = _trunk_gap_and_limb_scraps(rng)
+    ground = Ground(np.zeros(3), np.ones(len(points), bool), True)
+    params = LivnyParams(bridge_scraps=bridge_scraps, min_component_voxels=min_component_voxels, bridge_waypoints=False,
+                         bridge_support=0.0)
+    keep, parents, _ = _shortest_path_forest(points, ground, 4.0, 0.02, params)
+    cloud = points[keep]
+    node = int(cKDTree(cloud).query([0.0, 0.0, 3.9])[1])
+    path = []
+    while node >= 0:
+        path.append(node)
+        node = int(parents[node])
+    near = int((cKDTree(cloud).query(scraps)[0] < 0.05).sum())
+    return float(np.abs(cloud[path, 0]).max()), near
+
+
+def test_scraps_bridged_in_after_the_trunk_keep_it_straight(rng):
+    # every component bridged at once: the scraps join the trunk's parts, and the way up turns out along the limb
+    x_all, near_all = _trunk_path_x(False, 0, rng)
+    # the large components joined first: the trunk crosses its gap straight, and the scraps hang from the tree
+    x_after, near_after = _trunk_path_x(True, 20, np.random.default_rng(12345))
+    # the default drops the scraps
+    _, near_drop = _trunk_path_x(False, 20, np.random.default_rng(12345))
+    assert x_all > 1.0
+    assert x_after < 0.1
+    assert near_after == near_all == 21 and near_drop == 0
