@@ -303,17 +303,13 @@ def _shortest_path_forest(cloud: np.ndarray, ground: Ground, height: float, voxe
         _, lab = components(knn)
         keep = (np.bincount(lab)[lab] >= params.min_component_voxels) | np.isin(lab, lab[roots])
         if not keep.all():
-            index = np.cumsum(keep) - 1
             graph, nbridges = bridge_components(cloud[keep], knn[keep][:, keep].tocsr())
-            if params.bridge_scraps:  # the large components joined first, then the scraps bridged to them
-                kept0 = np.flatnonzero(keep)
-                g = graph.tocoo()
-                big = sp.csr_matrix((g.data, (kept0[g.row], kept0[g.col])), shape=(n, n))
-                graph, extra = bridge_components(cloud, knn.maximum(big).tocsr())
+            if params.bridge_scraps:
+                graph, extra = _bridge_scraps_in(cloud, knn, graph, keep)
                 nbridges += extra
-                keep = np.ones(n, bool)
+                keep[:] = True
             else:
-                roots = index[roots]
+                roots = (np.cumsum(keep) - 1)[roots]
     kept = np.flatnonzero(keep)
     _, parents, _ = shortest_path_tree(graph, roots)
     if params.bridge_support > 0:
@@ -324,6 +320,17 @@ def _shortest_path_forest(cloud: np.ndarray, ground: Ground, height: float, voxe
     if params.bridge_waypoints:
         keep, parents, stats["bridge_waypoints"] = _route_bridges(cloud, keep, parents, max_edge)
     return keep, parents, stats
+
+
+def _bridge_scraps_in(cloud: np.ndarray, knn: sp.csr_matrix, joined: sp.csr_matrix, large: np.ndarray
+                      ) -> tuple[sp.csr_matrix, int]:
+    """The whole cloud's graph: the kNN graph, the bridges ``joined`` already holds between the ``large`` vertices
+    (its indices are those of ``cloud[large]``), and the scraps bridged to them (:func:`bridge_components`). Returns
+    the graph and the number of bridges added to it."""
+    index = np.flatnonzero(large)
+    g = joined.tocoo()
+    big = sp.csr_matrix((g.data, (index[g.row], index[g.col])), shape=knn.shape)
+    return bridge_components(cloud, knn.maximum(big).tocsr())
 
 
 def _route_bridges(cloud: np.ndarray, keep: np.ndarray, parents: np.ndarray, max_edge: float
@@ -398,14 +405,13 @@ def _contract(cloud: np.ndarray, mass: np.ndarray, parents: np.ndarray, plant: n
 def _simplify(pos: np.ndarray, parents: np.ndarray, plant: np.ndarray, *, voxel: float, height: float,
               params: LivnyParams) -> tuple[np.ndarray, np.ndarray]:
     """Step 6 until stable: subtree-ratio pruning with short twigs, sibling merging, degree-2 removal."""
-    radii = None
+    ridges = params.min_twig_radii > 0  # (the radii of each round's skeleton, from the round before)
+    radii = _pipe_radii(pos, parents, plant, voxel=voxel, height=height, params=params)[3] if ridges else None
     for _ in range(params.simplify_rounds):
         n_before = len(pos)
         keep = prune_by_ratio(pos, parents, params.prune_ratio)
         keep &= prune_short_tips(pos, parents, params.min_twig_voxels * voxel, rounds=1)
-        if params.min_twig_radii > 0:
-            if radii is None:
-                radii = _pipe_radii(pos, parents, plant, voxel=voxel, height=height, params=params)[3]
+        if ridges:
             keep &= _prune_ridges(pos, parents, radii, params.min_twig_radii, 0.5 * voxel)
         if params.merge_fork_voxels > 0:
             keep &= merge_close_forks(pos, parents, params.merge_fork_voxels * voxel, rounds=1)

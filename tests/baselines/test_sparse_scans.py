@@ -158,12 +158,13 @@ def _trunk_path_x(bridge_scraps: bool, min_component_voxels: int, rng):
                          bridge_support=0.0)
     keep, parents, _ = _shortest_path_forest(points, ground, 4.0, 0.02, params)
     cloud = points[keep]
-    node = int(cKDTree(cloud).query([0.0, 0.0, 3.9])[1])
+    tree = cKDTree(cloud)
+    node = int(tree.query([0.0, 0.0, 3.9])[1])
     path = []
     while node >= 0:
         path.append(node)
         node = int(parents[node])
-    near = int((cKDTree(cloud).query(scraps)[0] < 0.05).sum())
+    near = int((tree.query(scraps)[0] < 0.05).sum())
     return float(np.abs(cloud[path, 0]).max()), near
 
 
